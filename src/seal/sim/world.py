@@ -228,6 +228,13 @@ class LiberoWorld:
     def goal_status(self) -> dict[str, bool]:
         return {str(a): self.check(a) for a in self.goal_atoms}
 
+    def object_position(self, name: str) -> np.ndarray:
+        """Privileged: world position of an object's body (for scripted policies and tests)."""
+        env = self._env
+        if name not in env.obj_body_id:
+            raise InvalidInput(f"unknown object {name!r} in {self.task.key}; valid: {', '.join(sorted(env.obj_body_id))}")
+        return np.array(env.sim.data.body_xpos[env.obj_body_id[name]])
+
     @property
     def objects(self) -> list[str]:
         """Names that goal atoms may refer to: objects, fixtures and their regions."""

@@ -1,0 +1,1 @@
+"""Who acts: action sources and reasoning policies."""
