@@ -1,0 +1,19 @@
+"""Benchmarks: each is a function of parsed CLI arguments that returns one JSON-able dict.
+
+Timings are medians of several repetitions; comparisons (speedups) are ratios taken within one
+run, because this kind of machine is shared and noisy.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+BENCHMARKS = {"sim": "seal.benchmarks.sim"}
+
+
+def run_benchmark(name: str, args) -> dict:
+    if name not in BENCHMARKS:
+        from seal.errors import InvalidInput
+
+        raise InvalidInput(f"unknown benchmark {name!r}; valid: {', '.join(BENCHMARKS)}")
+    return importlib.import_module(BENCHMARKS[name]).run(args)

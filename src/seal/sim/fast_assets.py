@@ -1,0 +1,219 @@
+"""Fast render mode: the same scene drawn with decimated meshes and smaller textures.
+
+On CPU rendering (Mesa llvmpipe) a LIBERO-10 frame costs ~11 ms fixed plus ~0.45 ms per
+1k mesh faces drawn, and the scenes carry ~400k visual faces, so geometry dominates.
+Here we build a *render-only* model of the scene in which every drawn mesh is
+quadric-decimated and every texture image is downsampled. Physics never sees this model
+(`SceneRenderer` copies positions into it before drawing), so collision geometry is
+untouched where it matters - in the physics model - and may be simplified here, where it
+is only drawn (robosuite draws the Panda's collision meshes too).
+
+Prepared assets are cached on disk (``$XDG_CACHE_HOME/seal/fast_assets``), keyed by the
+source mesh's content and the settings, so each mesh is decimated once per machine.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import tempfile
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+CACHE_VERSION = 6
+
+
+@dataclass(frozen=True)
+class FastRenderSettings:
+    face_ratio: float = 0.06  # keep this share of each mesh's faces ...
+    min_faces: int = 200  # ... but never fewer than this (small meshes stay intact)
+    texture_max: int = 256  # longest side of any texture image, in pixels
+    max_area_change: float = 0.03  # a decimated mesh must keep its surface area within 3%
+
+
+def cache_dir() -> Path:
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base) / "seal" / "fast_assets"
+
+
+def build_fast_model(scene_xml: str, settings: FastRenderSettings = FastRenderSettings()) -> mujoco.MjModel:
+    """Compile the render-only model of ``scene_xml`` (robosuite's full MJCF string)."""
+    stock = mujoco.MjModel.from_xml_string(scene_xml)
+    root = ET.fromstring(scene_xml)
+    drawn = _drawn_mesh_ids(stock)
+    out = cache_dir()
+    out.mkdir(parents=True, exist_ok=True)
+    for elem in root.iter("mesh"):
+        if elem.get("file") is None:
+            continue
+        mesh_id = mujoco.mj_name2id(stock, mujoco.mjtObj.mjOBJ_MESH, elem.get("name"))
+        if mesh_id in drawn:
+            elem.set("file", str(_decimated_mesh(stock, mesh_id, elem, settings, out)))
+            for attr in ("scale", "refpos", "refquat"):  # baked into the written vertices
+                elem.attrib.pop(attr, None)
+    for elem in root.iter("texture"):
+        if elem.get("file") is not None:
+            elem.set("file", str(_small_texture(Path(elem.get("file")), settings.texture_max, out)))
+    return mujoco.MjModel.from_xml_string(ET.tostring(root, encoding="unicode"))
+
+
+def _drawn_mesh_ids(model: mujoco.MjModel) -> set[int]:
+    """Meshes some visible geom draws (alpha > 0, in a group MuJoCo shows by default)."""
+    return {
+        int(model.geom_dataid[g])
+        for g in range(model.ngeom)
+        if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH and model.geom_rgba[g][3] > 0 and model.geom_group[g] <= 2
+    }
+
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    # Pool workers prepare the same assets at the same time: write aside, then rename.
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=path.suffix)
+    with os.fdopen(fd, "wb") as f:
+        f.write(data)
+    os.replace(tmp, path)
+
+
+def _key(*parts) -> str:
+    h = hashlib.blake2b(digest_size=10)
+    for p in (CACHE_VERSION, *parts):
+        h.update(repr(p).encode() if not isinstance(p, bytes) else p)
+    return h.hexdigest()
+
+
+@dataclass
+class _Mesh:
+    """One mesh as MuJoCo compiled it, in the asset's own (scaled) frame.
+
+    Faces index ``verts``; every face corner also indexes a normal and (when textured) a
+    texcoord, since MuJoCo keeps those per corner.
+    """
+
+    verts: np.ndarray  # (nv, 3)
+    faces: np.ndarray  # (nf, 3) into verts
+    normals: np.ndarray  # (nn, 3)
+    face_normals: np.ndarray  # (nf, 3) into normals
+    texcoords: np.ndarray | None = None  # (nt, 2)
+    face_texcoords: np.ndarray | None = None  # (nf, 3) into texcoords
+
+
+def _mesh_in_file_frame(model: mujoco.MjModel, i: int) -> _Mesh:
+    """Mesh ``i`` with MuJoCo's re-centring undone.
+
+    MuJoCo stores mesh vertices re-centred in the mesh's inertial frame and remembers that
+    frame as mesh_pos/mesh_quat; undoing it lets the compiler place the new mesh exactly
+    where the old one was, whatever its new centre of mass.
+    """
+    v0, nv = model.mesh_vertadr[i], model.mesh_vertnum[i]
+    n0, nn = model.mesh_normaladr[i], model.mesh_normalnum[i]
+    f0, nf = model.mesh_faceadr[i], model.mesh_facenum[i]
+    rot = np.empty(9)
+    mujoco.mju_quat2Mat(rot, model.mesh_quat[i])
+    rot = rot.reshape(3, 3)
+    mesh = _Mesh(
+        verts=model.mesh_vert[v0 : v0 + nv].astype(np.float64) @ rot.T + model.mesh_pos[i],
+        faces=model.mesh_face[f0 : f0 + nf].astype(np.int64),
+        normals=model.mesh_normal[n0 : n0 + nn].astype(np.float64) @ rot.T,
+        face_normals=model.mesh_facenormal[f0 : f0 + nf].astype(np.int64),
+    )
+    if model.mesh_texcoordnum[i] > 0:
+        t0, nt = model.mesh_texcoordadr[i], model.mesh_texcoordnum[i]
+        mesh.texcoords = model.mesh_texcoord[t0 : t0 + nt].astype(np.float64)
+        mesh.face_texcoords = model.mesh_facetexcoord[f0 : f0 + nf].astype(np.int64)
+    return mesh
+
+
+def _decimated_mesh(model, i: int, elem, settings: FastRenderSettings, out: Path) -> Path:
+    mesh = _mesh_in_file_frame(model, i)
+    src = Path(elem.get("file"))
+    key = _key(src.read_bytes() if src.is_file() else str(src), elem.get("scale"), elem.get("refpos"),
+               elem.get("refquat"), settings.face_ratio, settings.min_faces, settings.max_area_change, mesh.verts.tobytes()[:4096])
+    path = out / f"{src.stem}-{key}.obj"
+    if path.is_file():
+        return path
+    # Quadric decimation sometimes eats large flat parts of a non-manifold scene mesh (a
+    # floor, a table top). Surface area is a cheap witness: if too much of it went missing,
+    # keep twice as many faces and try again, up to the original mesh.
+    area = _area(mesh)
+    target = max(settings.min_faces, int(len(mesh.faces) * settings.face_ratio))
+    out_mesh = mesh
+    while target < len(mesh.faces):
+        out_mesh = _simplify(mesh, 1.0 - target / len(mesh.faces))
+        if abs(_area(out_mesh) - area) <= settings.max_area_change * area:
+            break
+        target, out_mesh = target * 2, mesh
+    _atomic_write(path, _obj_bytes(out_mesh))
+    return path
+
+
+def _area(mesh: _Mesh) -> float:
+    tri = mesh.verts[mesh.faces]
+    return float(np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum() / 2)
+
+
+def _simplify(mesh: _Mesh, reduction: float) -> _Mesh:
+    """Quadric decimation of the welded surface; normals and texcoords ride along per corner.
+
+    A surviving face is an original face whose three corners collapsed onto three distinct
+    vertices; it keeps its original corners' normals and texcoords, which slide a little
+    with the collapse (invisible at 224 px) but keep sharp edges sharp and seams seams.
+    """
+    import fast_simplification
+
+    # Textured meshes arrive as triangle soup (MuJoCo gives every face corner its own
+    # vertex); weld equal positions so the decimator sees one connected surface.
+    _, first, weld = np.unique(np.round(mesh.verts, 5), axis=0, return_index=True, return_inverse=True)
+    points = mesh.verts[first].astype(np.float32)
+    faces = weld.reshape(-1)[mesh.faces]
+    _, _, collapses = fast_simplification.simplify(points, faces.astype(np.int32), target_reduction=reduction,
+                                                   return_collapses=True)
+    new_points, _, mapping = fast_simplification.replay_simplification(points, faces.astype(np.int32), collapses)
+    mapped = np.asarray(mapping)[faces]
+    keep = (mapped[:, 0] != mapped[:, 1]) & (mapped[:, 1] != mapped[:, 2]) & (mapped[:, 0] != mapped[:, 2])
+    _, first = np.unique(np.sort(mapped[keep], axis=1), axis=0, return_index=True)
+    rows = np.flatnonzero(keep)[np.sort(first)]
+    return _Mesh(
+        verts=np.asarray(new_points, dtype=np.float64),
+        faces=mapped[rows],
+        normals=mesh.normals,
+        face_normals=mesh.face_normals[rows],
+        texcoords=mesh.texcoords,
+        face_texcoords=None if mesh.face_texcoords is None else mesh.face_texcoords[rows],
+    )
+
+
+def _obj_bytes(mesh: _Mesh) -> bytes:
+    lines = [f"v {x:.7g} {y:.7g} {z:.7g}" for x, y, z in mesh.verts]
+    lines += [f"vn {x:.6g} {y:.6g} {z:.6g}" for x, y, z in mesh.normals]
+    if mesh.texcoords is not None:
+        # MuJoCo flips v when it reads OBJ texcoords; flip back so the round trip is identity.
+        lines += [f"vt {u:.7g} {1.0 - v:.7g}" for u, v in mesh.texcoords]
+        for f, t, n in zip(mesh.faces + 1, mesh.face_texcoords + 1, mesh.face_normals + 1):
+            lines.append(f"f {f[0]}/{t[0]}/{n[0]} {f[1]}/{t[1]}/{n[1]} {f[2]}/{t[2]}/{n[2]}")
+    else:
+        for f, n in zip(mesh.faces + 1, mesh.face_normals + 1):
+            lines.append(f"f {f[0]}//{n[0]} {f[1]}//{n[1]} {f[2]}//{n[2]}")
+    return ("\n".join(lines) + "\n").encode()
+
+
+def _small_texture(src: Path, max_side: int, out: Path) -> Path:
+    from PIL import Image
+
+    key = _key(src.read_bytes(), max_side)
+    path = out / f"{src.stem}-{key}.png"
+    if path.is_file():
+        return path
+    with Image.open(src) as img:
+        # Power-of-two factors keep cube-map faces (e.g. 512x3072 = 1x6 squares) divisible.
+        factor = 1
+        while max(img.size) // factor > max_side:
+            factor *= 2
+        img = img.reduce(factor) if factor > 1 else img.copy()
+        tmp = path.with_suffix(f".{os.getpid()}.png")
+        img.save(tmp)
+    os.replace(tmp, path)
+    return path

@@ -1,0 +1,24 @@
+import numpy as np
+
+from seal.benchmarks.sim import psnr
+from seal.sim.world import LiberoWorld
+
+
+def test_fast_render_mode_is_close_to_stock_and_leaves_physics_alone(world):
+    fast = LiberoWorld(("libero_10", 0), render_mode="fast")
+    try:
+        world.reset(0)
+        fast.reset(0)
+        assert fast.snapshot() == world.snapshot()  # same physics, only the drawing differs
+        actions = np.random.default_rng(3).uniform(-1, 1, (15, 7))
+        world.step_chunk(actions)
+        fast.step_chunk(actions)
+        assert fast.snapshot() == world.snapshot()
+        a, b = world.observe(), fast.observe()
+        assert a.agent.shape == b.agent.shape == (224, 224, 3)
+        assert not np.array_equal(a.agent, b.agent)  # it really is a different render model
+        assert psnr(a.agent, b.agent) > 22 and psnr(a.wrist, b.wrist) > 18
+        fast_model = fast._get_renderer(256).model
+        assert fast_model.mesh_facenum.sum() < 0.35 * world.model.mesh_facenum.sum()
+    finally:
+        fast.close()
