@@ -1,56 +1,116 @@
-"""Run one episode of a task with an action source; write a video and a summary as we go."""
+"""One un-steered episode of a reasoning policy: think, act in chunks, think again.
+
+This is the `base` method (the policy alone). It records what demonstrations and reports
+need: the executed frames and actions, and the step at which each sub-plan's reasoning
+started and its sub-goal first held (the true critical moments).
+"""
 
 from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import imageio.v2 as imageio
+import numpy as np
 
 from seal.errors import SimulationError
+from seal.policies.base import ACTION_HORIZON
 from seal.sim.world import LiberoWorld
 
 
 @dataclass
-class EpisodeSummary:
+class EpisodeResult:
     task: str
     instruction: str
     init_index: int
     success: bool
     sim_error: bool
     steps: int
-    goal_status: dict
     wall_s: float
-    video: str
+    subplans: list[str] = field(default_factory=list)  # the plan as first written
+    critical_frames: list[int] = field(default_factory=list)  # step each sub-goal first held, -1 never
+    reasoning: list[tuple[int, str]] = field(default_factory=list)  # (step, reasoning text) at each <think>
+    goal_status: dict = field(default_factory=dict)
+    video: str = ""
 
 
-def run_episode(world: LiberoWorld, policy, *, init_index: int, out_dir: Path, max_steps: int | None = None,
-                frame_every: int = 5, progress=None) -> EpisodeSummary:
-    out_dir.mkdir(parents=True, exist_ok=True)
+@dataclass
+class Recording:
+    """Frames and actions of the executed trajectory (for datasets)."""
+
+    agent: list = field(default_factory=list)
+    wrist: list = field(default_factory=list)
+    states: list = field(default_factory=list)
+    actions: list = field(default_factory=list)
+
+
+def run_policy_episode(world: LiberoWorld, policy, *, init_index: int, max_steps: int | None = None,
+                       recording: Recording | None = None, video_path: Path | None = None,
+                       progress=None) -> EpisodeResult:
+    """Run ``policy`` (a ReasoningPolicy) alone for one episode; optionally record every frame."""
     max_steps = max_steps or world.task.max_steps
-    video_path = out_dir / "episode.mp4"
     start = time.perf_counter()
     world.reset(init_index)
-    success, sim_error = world.success(), False
-    with imageio.get_writer(video_path, fps=20 // frame_every, macro_block_size=1) as video:
-        video.append_data(world.observe().agent)
-        while not success and world.steps < max_steps:
-            try:
-                success = world.step(policy.act(world)).success
-            except SimulationError:
-                sim_error = True
-                break
-            if world.steps % frame_every == 0:
-                video.append_data(world.observe().agent)
-            if progress is not None:
-                progress(world.steps, max_steps)
-    summary = EpisodeSummary(
-        task=world.task.key, instruction=world.instruction, init_index=init_index,
-        success=success and not sim_error, sim_error=sim_error, steps=world.steps,
-        goal_status={} if sim_error else world.goal_status(),
-        wall_s=round(time.perf_counter() - start, 2), video=str(video_path),
-    )
-    (out_dir / "summary.json").write_text(json.dumps(asdict(summary), indent=2))
-    return summary
+    policy.reset(world.instruction, seed=init_index)
+    atoms = policy.privileged_atoms() if hasattr(policy, "privileged_atoms") else None
+    writer = imageio.get_writer(video_path, fps=10, macro_block_size=1) if video_path else None
+    result = EpisodeResult(task=world.task.key, instruction=world.instruction, init_index=init_index,
+                           success=False, sim_error=False, steps=0, wall_s=0.0, video=str(video_path or ""))
+    need_images = recording is not None or writer is not None
+    try:
+        obs = world.observe(images=need_images, privileged_atoms=atoms)
+        reasoning = policy.reason(obs)
+        result.subplans = list(reasoning.plans)
+        result.critical_frames = [-1] * len(reasoning.plans)
+        result.reasoning.append((0, reasoning.text()))
+        policy.begin(1)
+        while not world.success() and world.steps < max_steps and not reasoning.finished:
+            chunk = policy.act([obs], reasoning)[0]
+            if chunk.think:
+                reasoning = policy.reason(obs)
+                result.reasoning.append((world.steps, reasoning.text()))
+                policy.begin(1)
+                continue
+            for action in chunk.actions[:ACTION_HORIZON]:
+                if recording is not None:
+                    recording.agent.append(obs.agent)
+                    recording.wrist.append(obs.wrist)
+                    recording.states.append(obs.state.astype(np.float32))
+                    recording.actions.append(np.asarray(action, dtype=np.float32))
+                if writer is not None and world.steps % 2 == 0:
+                    writer.append_data(obs.agent)
+                world.step(action)
+                obs = world.observe(images=need_images, privileged_atoms=atoms)
+                _mark_critical(result, obs, policy, world.steps)
+                if progress is not None:
+                    progress(world.steps, max_steps)
+                if world.success() or world.steps >= max_steps:
+                    break
+    except SimulationError:
+        result.sim_error = True
+    finally:
+        if writer is not None:
+            writer.close()
+    result.success = world.success() and not result.sim_error
+    result.steps = world.steps
+    result.goal_status = {} if result.sim_error else world.goal_status()
+    result.wall_s = round(time.perf_counter() - start, 2)
+    return result
+
+
+def _mark_critical(result: EpisodeResult, obs, policy, step: int) -> None:
+    """Record the first step at which each sub-plan's sub-goal holds, in plan order."""
+    if obs.scene is None or not hasattr(policy, "plans"):
+        return
+    from seal.policies.expert.policy import progress as plan_progress
+
+    done = plan_progress(policy.plans(obs.scene), obs.scene)
+    for i, d in enumerate(done):
+        if d and result.critical_frames[i] < 0 and all(f >= 0 for f in result.critical_frames[:i]):
+            result.critical_frames[i] = step
+
+
+def write_summary(result: EpisodeResult, path: Path) -> None:
+    path.write_text(json.dumps(asdict(result), indent=2))

@@ -15,6 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 from openpi_client import image_tools
 
+from seal.sim.scene import SceneState
+
 IMAGE_SIZE = 224
 RENDER_SIZE = 256
 AGENT_CAMERA = "agentview"
@@ -27,6 +29,7 @@ class Observation:
     prompt: str
     agent: np.ndarray | None = None  # (224, 224, 3) uint8, None when not rendered
     wrist: np.ndarray | None = None
+    scene: "SceneState | None" = None  # privileged; only scripted policies ask for it
 
     def to_openpi(self) -> dict:
         """The request dict an openpi LIBERO policy server expects."""

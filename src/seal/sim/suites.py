@@ -8,6 +8,7 @@ a task id here must always mean the same task.
 from __future__ import annotations
 
 import functools
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -43,6 +44,12 @@ class TaskSpec:
         marker = self.name.find("SCENE")
         end = self.name.find("_", marker)
         return self.name[:end]
+
+    def initially_open(self) -> tuple[str, ...]:
+        """Regions the task's BDDL ``:init`` declares open (e.g. a drawer left open)."""
+        text = self.bddl_path.read_text()
+        init = text[text.index("(:init") : text.index("(:goal")]
+        return tuple(re.findall(r"\(Open\s+([\w]+)\)", init, flags=re.IGNORECASE))
 
     def init_states(self) -> np.ndarray:
         """The official init states, shape (n, state_dim); loaded from the package's data."""

@@ -28,6 +28,7 @@ from seal.sim.observation import (
     to_policy_image,
 )
 from seal.sim.render import RENDER_MODES, SceneRenderer
+from seal.sim.scene import SceneReader, SceneState
 from seal.sim.snapshot import Snapshot
 from seal.sim.suites import TaskSpec, get_task
 
@@ -80,6 +81,7 @@ class LiberoWorld:
         self._env = _build_robosuite_env(task)
         self._init_states = task.init_states()
         self._renderer: SceneRenderer | None = None
+        self._scene: SceneReader | None = None  # built on first privileged read
         self._steps = 0
         self.goal_atoms: list[GoalAtom] = [GoalAtom.from_bddl(s) for s in self._env.parsed_problem["goal_state"]]
 
@@ -177,8 +179,21 @@ class LiberoWorld:
         grip = np.array([d.qpos[i] for i in robot._ref_gripper_joint_pos_indexes])
         return np.concatenate([pos, quat_xyzw_to_axis_angle(xyzw), grip])
 
-    def observe(self, *, images: bool = True) -> Observation:
+    def scene_state(self, atoms=()) -> SceneState:
+        """Privileged: the narrow view scripted policies read (poses, sizes, joints, facts).
+
+        ``atoms`` are goal atoms (or their text) whose truth is included as ``facts``.
+        """
+        if self._scene is None:
+            self._scene = SceneReader(self._env)
+        return self._scene.read({str(a): self.check(a) for a in atoms})
+
+    def observe(self, *, images: bool = True, privileged_atoms=None) -> Observation:
+        """openpi-convention observation; ``privileged_atoms`` (a list, may be empty) adds the
+        scene state for scripted policies."""
         obs = Observation(state=self.state_vector(), prompt=self.instruction)
+        if privileged_atoms is not None:
+            obs.scene = self.scene_state(privileged_atoms)
         if images:
             raw = self.render_raw((AGENT_CAMERA, WRIST_CAMERA))
             obs.agent = to_policy_image(raw[AGENT_CAMERA])

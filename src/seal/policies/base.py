@@ -1,0 +1,74 @@
+"""The seam between SEAL and whoever acts: a reasoning policy.
+
+A reasoning VLA alternates between thinking (``<think>``: it writes its plan, what it has done
+and what it will do now) and acting (``<act>``: action chunks). SEAL only needs those two calls:
+
+- ``reason(obs)``: the three-field reasoning at the start of a sub-plan;
+- ``act(obs_batch, reasoning)``: one action chunk per observation (K candidates = K rows),
+  each flagged ``think=True`` once the policy considers the sub-plan done and would switch
+  back to thinking.
+
+Policies keep per-row state between ``act`` calls (e.g. random streams); ``begin`` starts a
+new sub-plan attempt for ``k`` rows.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol, Sequence
+
+import numpy as np
+
+from seal.sim.observation import Observation
+
+PREDICT_HORIZON = 16  # actions predicted per chunk
+ACTION_HORIZON = 5  # actions executed before the policy is queried again
+THINK, ACT = "<think>", "<act>"
+
+
+@dataclass(frozen=True)
+class Reasoning:
+    """What the policy writes when it thinks: all plans, what is done, what to do now."""
+
+    plans: tuple[str, ...]
+    done: tuple[str, ...]
+    now: str  # "" when the policy believes the task is complete
+
+    @property
+    def finished(self) -> bool:
+        return not self.now
+
+    def text(self) -> str:
+        """The reasoning as the policy writes it between <think> and <act>."""
+        plans = " ".join(f"{i + 1}. {p}." for i, p in enumerate(self.plans))
+        done = " ".join(f"{p}." for p in self.done) if self.done else "nothing yet."
+        now = f"{self.now}." if self.now else "the task is complete."
+        return f"Plans: {plans}\nWhat has been done: {done}\nNow I need to do: {now}"
+
+
+@dataclass
+class ActionChunk:
+    """One row of an ``act`` answer."""
+
+    actions: np.ndarray  # (PREDICT_HORIZON, 7); the caller executes the first ACTION_HORIZON
+    think: bool = False  # the policy switched to <think>: its sub-plan is done (actions unused)
+
+
+class ReasoningPolicy(Protocol):
+    """Anything that writes sub-plans and acts on them (scripted expert, openpi client, ...)."""
+
+    def needs_privileged_state(self) -> bool:
+        """Whether observations must carry the privileged `SceneState` (scripted policies)."""
+        ...
+
+    def reset(self, instruction: str, seed: int) -> None:
+        """Start a new episode of the task with this instruction."""
+        ...
+
+    def reason(self, obs: Observation) -> Reasoning: ...
+
+    def begin(self, k: int) -> None:
+        """Start ``k`` parallel attempts at the current sub-plan (rows of later ``act`` calls)."""
+        ...
+
+    def act(self, obs_batch: Sequence[Observation], reasoning: Reasoning) -> list[ActionChunk]: ...

@@ -1,0 +1,226 @@
+"""The scripted reasoning expert: writes sub-plans like a reasoning VLA, then acts on them.
+
+It is SEAL's embedded base policy on a machine without a GPU or pretrained weights, and the
+source of demonstrations with true sub-plan boundaries. With `FailureKnobs` it misses its own
+plan the way real VLAs do - noisy actions, off-centre grasps, early releases, the wrong object -
+while its reasoning text still names the right thing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Sequence
+
+import numpy as np
+
+from seal.errors import InvalidInput
+from seal.policies.base import ACTION_HORIZON, PREDICT_HORIZON, ActionChunk, Reasoning
+from seal.policies.expert import skills
+from seal.policies.expert.plan import SubPlan, category, decompose
+from seal.sim.goals import GoalAtom
+from seal.sim.observation import Observation
+from seal.sim.scene import SceneState
+
+# How the controller moves per step per unit of action (measured: ~6 mm at 0.5), used to
+# extrapolate the end effector when predicting a whole chunk.
+METRES_PER_ACTION = 0.012
+RADIANS_PER_ACTION = 0.09
+
+
+@dataclass(frozen=True)
+class FailureKnobs:
+    """Seeded ways to miss the plan; each is independent and 0 turns it off.
+
+    action_noise:  std of Gaussian noise on every translation/rotation action entry.
+    grasp_offset:  std (metres) of a horizontal offset of the grasp point, drawn per attempt.
+    release_early: probability that a place attempt lets go 6-12 cm too high.
+    wrong_object:  probability that an attempt picks a different, plausible object, or places
+                   at a different region, while the reasoning still names the right one.
+    """
+
+    action_noise: float = 0.0
+    grasp_offset: float = 0.0
+    release_early: float = 0.0
+    wrong_object: float = 0.0
+
+    @classmethod
+    def misaligned(cls) -> "FailureKnobs":
+        """The documented setting where the expert fails often enough for steering to help."""
+        return cls(action_noise=0.1, grasp_offset=0.012, release_early=0.15, wrong_object=0.15)
+
+    @classmethod
+    def named(cls, name: str) -> "FailureKnobs":
+        presets = {"clean": cls(), "misaligned": cls.misaligned()}
+        if name not in presets:
+            raise InvalidInput(f"unknown knob setting {name!r}; valid: {', '.join(presets)}")
+        return presets[name]
+
+
+@dataclass
+class _Attempt:
+    """One row's attempt at the current sub-plan: its random stream and drawn perturbations."""
+
+    rng: np.random.Generator
+    knobs: skills.Knobs
+    acting_on: str  # the object actually acted on (may differ from the plan's)
+    target: str | None
+
+
+@dataclass
+class ScriptedExpert:
+    """A `ReasoningPolicy` backed by privileged state and motion primitives."""
+
+    goal_atoms: list[GoalAtom]
+    instruction: str
+    initially_open: tuple[str, ...] = ()
+    knobs: FailureKnobs = field(default_factory=FailureKnobs)
+    seed: int = 0
+    task: str = ""
+
+    def __post_init__(self) -> None:
+        self._plans: list[SubPlan] | None = None
+        self._current: SubPlan | None = None
+        self._attempts: list[_Attempt] = []
+        self._round = 0
+
+    @classmethod
+    def for_world(cls, world, knobs: FailureKnobs | None = None, seed: int = 0) -> "ScriptedExpert":
+        return cls(goal_atoms=list(world.goal_atoms), instruction=world.instruction,
+                   initially_open=world.task.initially_open(), knobs=knobs or FailureKnobs(), seed=seed,
+                   task=world.task.key)
+
+    # ---- ReasoningPolicy ------------------------------------------------------------------
+    def privileged_atoms(self) -> list[str]:
+        """Facts this policy reads from the scene: every sub-goal, and grasps of all movers."""
+        atoms = {str(a) for a in self.goal_atoms}
+        for a in self.goal_atoms:
+            if a.predicate in ("in", "on"):
+                atoms.add(f"Grasped({a.subject})")
+        return sorted(atoms)
+
+    def reset(self, instruction: str | None = None, seed: int | None = None) -> None:
+        if instruction is not None:
+            self.instruction = instruction
+        if seed is not None:
+            self.seed = seed
+        self._plans, self._current, self._attempts, self._round = None, None, [], 0
+
+    def plans(self, scene: SceneState) -> list[SubPlan]:
+        if self._plans is None:
+            names = sorted(set(scene.bodies) | set(scene.sites))
+            self._plans = decompose(self.goal_atoms, self.instruction, names, task=self.task,
+                                    initially_open=self.initially_open)
+        return self._plans
+
+    def reason(self, obs: Observation) -> Reasoning:
+        scene = _scene(obs)
+        plans = self.plans(scene)
+        done = progress(plans, scene)
+        current = next((p for p, d in zip(plans, done) if not d), None)
+        self._current = current
+        finished = tuple(p.text for p, d in zip(plans, done) if d)
+        return Reasoning(plans=tuple(p.text for p in plans), done=finished, now=current.text if current else "")
+
+    def begin(self, k: int) -> None:
+        self._round += 1
+        self._attempts = [self._draw(np.random.default_rng([self.seed, self._round, row])) for row in range(k)]
+
+    def act(self, obs_batch: Sequence[Observation], reasoning: Reasoning) -> list[ActionChunk]:
+        if self._current is None or reasoning.now != self._current.text:
+            raise InvalidInput(f"act() for sub-plan {reasoning.now!r}, but the last reason() chose "
+                               f"{self._current.text if self._current else 'nothing'!r}")
+        if len(self._attempts) != len(obs_batch):
+            self.begin(len(obs_batch))
+        return [self._act_row(_scene(o), a) for o, a in zip(obs_batch, self._attempts)]
+
+    # ---- internals ----------------------------------------------------------------------------
+    def _draw(self, rng: np.random.Generator) -> _Attempt:
+        sub, kn = self._current, self.knobs
+        offset = np.zeros(3)
+        if kn.grasp_offset > 0:
+            offset[:2] = rng.normal(0.0, kn.grasp_offset, 2)
+        early = float(rng.uniform(0.06, 0.12)) if rng.random() < kn.release_early else 0.0
+        acting_on, target = (sub.obj, sub.target) if sub else ("", None)
+        if sub is not None and rng.random() < kn.wrong_object:
+            acting_on, target = self._plausible_mistake(sub, rng)
+        return _Attempt(rng=rng, knobs=skills.Knobs(grasp_offset=offset, release_early=early),
+                        acting_on=acting_on, target=target)
+
+    def _plausible_mistake(self, sub: SubPlan, rng) -> tuple[str, str | None]:
+        """Another object of the task (or region) that a confused policy might act on."""
+        movers = sorted({a.subject for a in self.goal_atoms if a.predicate in ("in", "on")} - {sub.obj})
+        if sub.skill == "pick" and movers:
+            return str(rng.choice(movers)), sub.target
+        if sub.skill == "place" and self._last_scene is not None:
+            regions = [n for n in self._last_scene.sites if n != sub.target and not n.endswith("init_region")
+                       and n.endswith("_region")]
+            if regions:
+                return sub.obj, str(rng.choice(regions))
+        return sub.obj, sub.target
+
+    _last_scene: SceneState | None = None
+
+    def _act_row(self, scene: SceneState, attempt: _Attempt) -> ActionChunk:
+        self._last_scene = scene
+        sub = self._current
+        first = self._skill_step(sub, scene, attempt)
+        if first.done:
+            return ActionChunk(actions=np.zeros((PREDICT_HORIZON, 7)), think=True)
+        # Predict the whole chunk by extrapolating the end effector under the controller's
+        # measured response; only the first ACTION_HORIZON actions are executed anyway.
+        actions = [first.action]
+        s = scene
+        for _ in range(PREDICT_HORIZON - 1):
+            s = _advance(s, actions[-1])
+            actions.append(self._skill_step(sub, s, attempt).action)
+        out = np.array(actions)
+        if self.knobs.action_noise > 0:
+            out[:, :6] += attempt.rng.normal(0.0, self.knobs.action_noise, (PREDICT_HORIZON, 6))
+        return ActionChunk(actions=np.clip(out, -1.0, 1.0))
+
+    def _skill_step(self, sub: SubPlan, s: SceneState, attempt: _Attempt) -> skills.Step:
+        if sub.skill == "pick":
+            return skills.pick(s, attempt.acting_on, attempt.knobs)
+        if sub.skill == "place":
+            return skills.place(s, sub.obj, attempt.target, attempt.knobs)
+        from seal.policies.expert.articulated import ARTICULATED_SKILLS
+
+        fn = ARTICULATED_SKILLS.get(sub.skill)
+        if fn is None:
+            raise InvalidInput(f"no motion primitive for skill {sub.skill!r} ({sub.text!r}) in task {self.task}")
+        return fn(s, sub.obj, sub.goal)
+
+
+def progress(plans: list[SubPlan], scene: SceneState) -> list[bool]:
+    """Which sub-plans are achieved in this state.
+
+    A pick counts as done while its object is held, or once the place that follows it holds.
+    """
+    facts = scene.facts
+    done = []
+    for i, p in enumerate(plans):
+        holds = facts.get(str(p.goal), False)
+        if p.skill == "pick" and not holds and i + 1 < len(plans) and plans[i + 1].skill == "place":
+            holds = facts.get(str(plans[i + 1].goal), False)
+        done.append(bool(holds))
+    # Everything before the first open sub-plan counts as done only if it still holds; the
+    # current sub-plan is the first one that does not hold.
+    return done
+
+
+def _scene(obs: Observation) -> SceneState:
+    if obs.scene is None:
+        raise InvalidInput("the scripted expert needs privileged observations: "
+                           "observe(privileged_atoms=policy.privileged_atoms())")
+    return obs.scene
+
+
+def _advance(s: SceneState, action: np.ndarray) -> SceneState:
+    """The scene after one action, moving only the end effector (a kinematic guess)."""
+    yaw = RADIANS_PER_ACTION * action[5]
+    c, si = np.cos(yaw), np.sin(yaw)
+    rot = np.array([[c, -si, 0], [si, c, 0], [0, 0, 1]])
+    return replace(s, eef_pos=s.eef_pos + METRES_PER_ACTION * action[:3], finger_axis=rot @ s.finger_axis)
+
+
+__all__ = ["ScriptedExpert", "FailureKnobs", "progress", "category", "ACTION_HORIZON"]

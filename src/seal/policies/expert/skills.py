@@ -1,0 +1,162 @@
+"""Motion primitives on LIBERO's delta end-effector controller, written as reactive rules.
+
+Each skill maps the current privileged `SceneState` to one 7-d action (dx, dy, dz, droll,
+dpitch, dyaw, gripper) and says whether it is finished. Being a function of the state alone,
+with no memory of earlier steps, a skill resumes correctly after any snapshot restore and in
+any of K parallel candidates, and it retries by itself (a missed grasp re-opens and
+re-descends).
+
+Conventions (robosuite OSC_POSE): position deltas are scaled by 0.05 m per unit, rotation
+deltas (world-frame axis-angle) by 0.5 rad per unit; gripper -1 opens, +1 closes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from seal.sim.scene import Body, SceneState
+
+POS_GAIN = 20.0  # action per metre of position error (saturates at 5 cm)
+YAW_GAIN = 2.0  # action per radian of yaw error
+OPEN, CLOSE = -1.0, 1.0
+HOVER = 0.10  # clearance above an object before descending onto it
+LIFT = 0.22  # height above the table a picked object is raised to
+CARRY = 0.12  # clearance of a carried object above whatever it passes over
+OPEN_WIDTH = 0.07  # finger gap that counts as open
+EMPTY_WIDTH = 0.011  # finger gap of a gripper closed on nothing (~0.008)
+XY_TOL, Z_TOL = 0.008, 0.008
+# Objects picked by their rim (one finger inside, one outside the wall) rather than across.
+RIM_GRASP = ("mug", "bowl")
+
+
+@dataclass(frozen=True)
+class Knobs:
+    """Per-attempt perturbations drawn by the policy (all zero for the clean expert)."""
+
+    grasp_offset: np.ndarray = field(default_factory=lambda: np.zeros(3))  # added to the grasp point, metres
+    release_early: float = 0.0  # release this many metres above the proper height
+
+
+@dataclass
+class Step:
+    action: np.ndarray
+    done: bool = False
+
+
+def move(eef: np.ndarray, goal: np.ndarray, gripper: float, yaw_err: float = 0.0) -> np.ndarray:
+    delta = np.clip(POS_GAIN * (goal - eef), -1.0, 1.0)
+    return np.array([*delta, 0.0, 0.0, np.clip(YAW_GAIN * yaw_err, -1, 1), gripper])
+
+
+def hold(gripper: float) -> np.ndarray:
+    return np.array([0, 0, 0, 0, 0, 0, gripper], dtype=np.float64)
+
+
+def _wrap(angle: float) -> float:
+    """Into [-pi/2, pi/2): a parallel gripper is symmetric under a half turn."""
+    return (angle + np.pi / 2) % np.pi - np.pi / 2
+
+
+def _finger_yaw(s: SceneState) -> float:
+    return float(np.arctan2(s.finger_axis[1], s.finger_axis[0]))
+
+
+def grasp_pose(s: SceneState, name: str, knobs: Knobs) -> tuple[np.ndarray, float]:
+    """Where the gripper centre goes to grasp ``name``, and the finger-axis yaw to use."""
+    body = s.bodies[name]
+    top = body.hi[2]
+    height = body.size[2]
+    if any(k in name for k in RIM_GRASP):
+        # Pinch the wall: fingers straddle the rim on the side nearest the gripper.
+        centre = body.center.copy()
+        radius = min(body.size[0], body.size[1]) / 2
+        to_eef = s.eef_pos[:2] - centre[:2]
+        direction = to_eef / (np.linalg.norm(to_eef) + 1e-9)
+        point = np.array([*(centre[:2] + direction * (radius - 0.012)), top - min(0.025, 0.5 * height)])
+        yaw = float(np.arctan2(direction[1], direction[0]))  # close across the wall (radially)
+    else:
+        centre = body.center
+        point = np.array([centre[0], centre[1], top - min(0.03, 0.5 * height)])
+        ext = body.local_hi - body.local_lo
+        # close across the object's narrower horizontal side
+        yaw = body.yaw + (0.0 if ext[0] <= ext[1] else np.pi / 2)
+    return point + knobs.grasp_offset, yaw
+
+
+def pick(s: SceneState, name: str, knobs: Knobs) -> Step:
+    body = s.bodies[name]
+    grasped = s.facts.get(f"Grasped({name})", False)
+    point, yaw = grasp_pose(s, name, knobs)
+    yaw_err = _wrap(yaw - _finger_yaw(s))
+    if grasped:
+        lift = s.table_z + LIFT  # absolute: the grasp point rises with the object
+        if body.lo[2] > s.table_z + 0.06 and s.eef_pos[2] > lift - 0.04:
+            return Step(hold(CLOSE), done=True)
+        return Step(move(s.eef_pos, np.array([*s.eef_pos[:2], lift]), CLOSE))
+    err = point - s.eef_pos
+    at_grasp = np.linalg.norm(err[:2]) < XY_TOL and abs(err[2]) < Z_TOL
+    if at_grasp:
+        if s.gripper_width < EMPTY_WIDTH:  # closed on nothing: open up and try again
+            return Step(move(s.eef_pos, s.eef_pos + [0, 0, 0.03], OPEN))
+        return Step(hold(CLOSE))
+    if s.gripper_width < OPEN_WIDTH:
+        # Still closing at the grasp point: keep closing; anywhere else: open first.
+        if np.linalg.norm(err[:2]) < 2 * XY_TOL and abs(err[2]) < 2 * Z_TOL and s.gripper_width > EMPTY_WIDTH:
+            return Step(hold(CLOSE))
+        return Step(move(s.eef_pos, s.eef_pos + [0, 0, 0.01], OPEN))
+    hover = np.array([point[0], point[1], max(point[2] + HOVER, body.hi[2] + 0.05)])
+    if np.linalg.norm(err[:2]) > 0.015 or abs(yaw_err) > 0.1:
+        if s.eef_pos[2] < hover[2] - 0.03 and np.linalg.norm(err[:2]) > 0.03:
+            return Step(move(s.eef_pos, np.array([*s.eef_pos[:2], hover[2]]), OPEN, yaw_err))  # up first
+        return Step(move(s.eef_pos, hover, OPEN, yaw_err))
+    return Step(move(s.eef_pos, point, OPEN, yaw_err))
+
+
+def place_point(s: SceneState, obj: str, target: str) -> tuple[np.ndarray, float]:
+    """(x, y) to release over, and the height the carried object's bottom should reach."""
+    if target in s.bodies:  # On(x, plate_1): rest on top of another object
+        t = s.bodies[target]
+        return np.array([*t.center[:2], 0.0]), t.hi[2] + 0.01
+    site = s.sites[target]
+    half = np.abs(site.xmat) @ site.size  # world-frame half extents of the region box
+    floor = site.pos[2] - half[2]
+    # Containers (basket, caddy, microwave): let go just above the rim of whatever holds it.
+    owner = max((n for n in s.bodies if target.startswith(n + "_")), key=len, default=None)
+    if owner is not None and target.endswith("contain_region"):
+        floor = s.bodies[owner].hi[2] - 0.02
+    return np.array([*site.pos[:2], 0.0]), floor + 0.01
+
+
+def place(s: SceneState, obj: str, target: str, knobs: Knobs) -> Step:
+    body = s.bodies[obj]
+    grasped = s.facts.get(f"Grasped({obj})", False)
+    xy, bottom = place_point(s, obj, target)
+    if not grasped:
+        # Released (or dropped): back off upwards, then hand back to thinking.
+        if s.gripper_width < OPEN_WIDTH:
+            return Step(move(s.eef_pos, s.eef_pos + [0, 0, 0.02], OPEN))
+        clear = body.hi[2] + 0.06
+        if s.eef_pos[2] < clear:
+            return Step(move(s.eef_pos, np.array([*s.eef_pos[:2], clear + 0.02]), OPEN))
+        return Step(hold(OPEN), done=True)
+    below = s.eef_pos[2] - body.lo[2]  # how far the object hangs below the gripper centre
+    release_z = bottom + below + knobs.release_early
+    carry_z = max(release_z, _highest_between(s, obj) + below + CARRY * 0.5)
+    dist = np.linalg.norm(xy[:2] - s.eef_pos[:2])
+    if dist > 0.04:  # far: rise to carrying height, then travel
+        if s.eef_pos[2] < carry_z - 0.03:
+            return Step(move(s.eef_pos, np.array([*s.eef_pos[:2], carry_z]), CLOSE))
+        return Step(move(s.eef_pos, np.array([xy[0], xy[1], carry_z]), CLOSE))
+    if dist > 0.015 and s.eef_pos[2] > release_z + 0.05:  # close: centre before going down
+        return Step(move(s.eef_pos, np.array([xy[0], xy[1], s.eef_pos[2]]), CLOSE))
+    if s.eef_pos[2] - release_z > Z_TOL:  # descend, still correcting sideways
+        return Step(move(s.eef_pos, np.array([xy[0], xy[1], release_z]), CLOSE))
+    return Step(hold(OPEN))
+
+
+def _highest_between(s: SceneState, carried: str) -> float:
+    """Top of the tallest other object: a carried object passes above all of them."""
+    tops = [b.hi[2] for n, b in s.bodies.items() if n != carried and b.hi[2] < s.table_z + 0.4]
+    return max(tops, default=s.table_z)

@@ -1,0 +1,173 @@
+"""The one narrow, privileged view of a LIBERO world that scripted policies may read.
+
+A real VLA sees only images and proprioception. The scripted expert (our stand-in for a
+reasoning VLA on this machine) also needs object poses and sizes, region boxes and joint
+angles. Everything it may read is in `SceneState`: plain arrays, picklable, so it travels
+with an observation from a pool worker to the policy. Nothing else of the simulator leaks.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Body:
+    """An object or fixture: pose, and its extent in its own frame and in the world."""
+
+    pos: np.ndarray  # (3,) body origin, world frame
+    quat: np.ndarray  # (4,) wxyz
+    local_lo: np.ndarray  # (3,) box around its geoms, in the body's own frame
+    local_hi: np.ndarray
+    lo: np.ndarray  # (3,) axis-aligned box around its geoms, world frame
+    hi: np.ndarray
+
+    @property
+    def center(self) -> np.ndarray:
+        return (self.lo + self.hi) / 2
+
+    @property
+    def size(self) -> np.ndarray:
+        return self.hi - self.lo
+
+    @property
+    def yaw(self) -> float:
+        w, x, y, z = self.quat
+        return float(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
+
+
+@dataclass(frozen=True)
+class Site:
+    """A region (LIBERO site): position, orientation and half-sizes."""
+
+    pos: np.ndarray
+    xmat: np.ndarray  # (3, 3)
+    size: np.ndarray
+
+
+@dataclass
+class SceneState:
+    eef_pos: np.ndarray  # (3,) end-effector site, world frame
+    eef_xmat: np.ndarray  # (3, 3) end-effector orientation
+    finger_axis: np.ndarray  # (3,) unit vector from one finger pad to the other
+    gripper_width: float  # distance between the finger pads' joints (~0.08 open, ~0 closed)
+    bodies: dict[str, Body] = field(default_factory=dict)
+    sites: dict[str, Site] = field(default_factory=dict)
+    joints: dict[str, float] = field(default_factory=dict)  # articulated fixtures' joints
+    facts: dict[str, bool] = field(default_factory=dict)  # goal atoms asked for -> truth
+    table_z: float = 0.0  # height of the table top under the scene
+
+
+class SceneReader:
+    """Reads `SceneState` from a robosuite/LIBERO env; geometry lookups are prepared once."""
+
+    def __init__(self, env):
+        self._env = env
+        m = env.sim.model._model
+        self._model = m
+        self._geoms: dict[str, np.ndarray] = {}
+        names = list(env.objects_dict) + list(env.fixtures_dict)
+        for name in names:
+            root = env.obj_body_id[name]
+            subtree = {b for b in range(m.nbody) if _is_descendant(m, b, root)}
+            geoms = [g for g in range(m.ngeom) if m.geom_bodyid[g] in subtree]
+            colliding = [g for g in geoms if m.geom_contype[g] or m.geom_conaffinity[g]]
+            self._geoms[name] = np.array(colliding or geoms, dtype=np.int64)
+        self._joints = {
+            m.joint(j).name: int(m.jnt_qposadr[j])
+            for j in range(m.njnt)
+            if any(m.joint(j).name.startswith(f"{f}_") for f in env.fixtures_dict)
+            and m.jnt_type[j] in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE)
+        }
+        robot = env.robots[0]
+        self._eef_site = robot.eef_site_id
+        self._grip_qpos = list(robot._ref_gripper_joint_pos_indexes)
+        pads = robot.gripper.important_geoms
+        self._pad_left = m.geom(pads["left_fingerpad"][0]).id
+        self._pad_right = m.geom(pads["right_fingerpad"][0]).id
+        self._table_z = _table_height(env)
+
+    def read(self, facts: dict[str, bool] | None = None) -> SceneState:
+        d = self._env.sim.data._data
+        left, right = d.geom_xpos[self._pad_left], d.geom_xpos[self._pad_right]
+        axis = right - left
+        grip = d.qpos[self._grip_qpos]
+        return SceneState(
+            eef_pos=d.site_xpos[self._eef_site].copy(),
+            eef_xmat=d.site_xmat[self._eef_site].reshape(3, 3).copy(),
+            finger_axis=axis / (np.linalg.norm(axis) + 1e-9),
+            gripper_width=float(grip[0] - grip[1]),
+            bodies={name: self._body(name, d) for name in self._geoms},
+            sites=self._sites(d),
+            joints={name: float(d.qpos[adr]) for name, adr in self._joints.items()},
+            facts=dict(facts or {}),
+            table_z=self._table_z,
+        )
+
+    def _body(self, name: str, d) -> Body:
+        bid = self._env.obj_body_id[name]
+        pos, quat = d.xpos[bid].copy(), d.xquat[bid].copy()
+        rot = d.xmat[bid].reshape(3, 3)
+        corners = _geom_corners(self._model, d, self._geoms[name])  # (n, 3) world
+        local = (corners - pos) @ rot
+        return Body(pos=pos, quat=quat, local_lo=local.min(0), local_hi=local.max(0),
+                    lo=corners.min(0), hi=corners.max(0))
+
+    def _sites(self, d) -> dict[str, Site]:
+        m = self._model
+        out = {}
+        for name in self._env.object_sites_dict:
+            sid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, name)
+            if sid >= 0:
+                out[name] = Site(pos=d.site_xpos[sid].copy(), xmat=d.site_xmat[sid].reshape(3, 3).copy(),
+                                 size=m.site_size[sid].copy())
+        return out
+
+
+_SIGNS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=np.float64)
+
+
+def _geom_corners(m, d, geoms: np.ndarray) -> np.ndarray:
+    """World positions of the 8 corners of each geom's bounding box."""
+    aabb = m.geom_aabb[geoms]  # (n, 6): centre (3), half-size (3), in the geom's frame
+    local = aabb[:, None, :3] + _SIGNS[None] * aabb[:, None, 3:]  # (n, 8, 3)
+    rot = d.geom_xmat[geoms].reshape(-1, 3, 3)
+    world = np.einsum("nij,nkj->nki", rot, local) + d.geom_xpos[geoms][:, None, :]
+    return world.reshape(-1, 3)
+
+
+def _is_descendant(m, body: int, root: int) -> bool:
+    while body > 0:
+        if body == root:
+            return True
+        body = m.body_parentid[body]
+    return body == root
+
+
+def _table_height(env) -> float:
+    """Height of the static surface under the workspace (table top, or floor).
+
+    Cast rays straight down over a small grid around the workspace centre, skip anything
+    that moves (objects, the robot), and take the median height of the static hits.
+    """
+    m, d = env.sim.model._model, env.sim.data._data
+    centre = np.asarray(getattr(env, "workspace_offset", (0.0, 0.0, 0.0)), dtype=np.float64)
+    geomid = np.zeros(1, dtype=np.int32)
+    down = np.array([0.0, 0.0, -1.0])
+    heights = []
+    for dx in (-0.15, 0.0, 0.15):
+        for dy in (-0.15, 0.0, 0.15):
+            start = np.array([centre[0] + dx, centre[1] + dy, 3.0])
+            for _ in range(10):  # step through moving geoms until a static one is hit
+                dist = mujoco.mj_ray(m, d, start, down, None, 1, -1, geomid)
+                if dist < 0:
+                    break
+                hit = start + dist * down
+                if m.body_weldid[m.geom_bodyid[geomid[0]]] == 0:
+                    heights.append(hit[2])
+                    break
+                start = hit + 1e-4 * down
+    return float(np.median(heights)) if heights else float(centre[2])
