@@ -117,3 +117,24 @@ def test_exit_is_quiet_after_rendering():
     proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     assert "Traceback" not in proc.stderr and "EGLError" not in proc.stderr
+
+
+def test_controller_goal_is_part_of_the_state(world):
+    """robosuite keeps the old goal orientation while rotation actions are zero: snapshot it."""
+    rotating = RNG_ACTIONS[:20]
+    straight = RNG_ACTIONS[20:50].copy()
+    straight[:, 3:6] = 0.0  # translation only, as scripted policies command
+    world.reset(0)
+    fresh = world.snapshot()
+    world.step_chunk(rotating)
+    world.reset(0)
+    assert world.snapshot() == fresh  # reset forgets the previous episode's controller goal
+    world.step_chunk(rotating)
+    snap = world.snapshot()
+    world.step_chunk(straight)
+    reference = world.snapshot()
+    world.reset(4)
+    world.step_chunk(rotating[::-1])  # leave a different goal orientation behind
+    world.restore(snap)
+    world.step_chunk(straight)
+    assert np.abs(world.snapshot().physics - reference.physics).max() == 0.0

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import importlib
 
-BENCHMARKS = {"sim": "seal.benchmarks.sim"}
+BENCHMARKS = {"sim": "seal.benchmarks.sim", "expert": "seal.benchmarks.expert"}
 
 
 def run_benchmark(name: str, args) -> dict:

@@ -48,6 +48,40 @@ class Site:
     size: np.ndarray
 
 
+@dataclass(frozen=True)
+class Box:
+    """One collision geom's bounding box: centre and orientation in the world, half-sizes."""
+
+    center: np.ndarray  # (3,) world
+    xmat: np.ndarray  # (3, 3) the box's axes as columns, world frame
+    half: np.ndarray  # (3,) half-sizes along its own axes
+
+    @property
+    def lo(self) -> np.ndarray:  # axis-aligned world box around it
+        return self.center - np.abs(self.xmat) @ self.half
+
+    @property
+    def hi(self) -> np.ndarray:
+        return self.center + np.abs(self.xmat) @ self.half
+
+
+@dataclass(frozen=True)
+class Articulation:
+    """A fixture's hinge or slide joint and the part it moves (a drawer, a door, a knob).
+
+    LIBERO's convention: every articulated fixture is closed / off near ``qpos == 0`` and
+    opens toward the far end of ``range``.
+    """
+
+    kind: str  # "hinge" or "slide"
+    qpos: float
+    range: np.ndarray  # (2,) joint limits
+    axis: np.ndarray  # (3,) unit joint axis, world frame
+    anchor: np.ndarray  # (3,) a point on the axis, world frame
+    part: Body  # the moving body's pose, and the box around the geoms it carries
+    geoms: tuple[Box, ...] = ()  # the moving part's collision geoms (handles are among them)
+
+
 @dataclass
 class SceneState:
     eef_pos: np.ndarray  # (3,) end-effector site, world frame
@@ -59,6 +93,10 @@ class SceneState:
     joints: dict[str, float] = field(default_factory=dict)  # articulated fixtures' joints
     facts: dict[str, bool] = field(default_factory=dict)  # goal atoms asked for -> truth
     table_z: float = 0.0  # height of the table top under the scene
+    # Articulated fixtures' joints in full (by joint name, as in `joints`), and which joints
+    # move each fixture or region (e.g. white_cabinet_1_bottom_region -> its drawer's slide).
+    articulations: dict[str, Articulation] = field(default_factory=dict)
+    joints_of: dict[str, tuple[str, ...]] = field(default_factory=dict)
 
 
 class SceneReader:
@@ -82,6 +120,7 @@ class SceneReader:
             if any(m.joint(j).name.startswith(f"{f}_") for f in env.fixtures_dict)
             and m.jnt_type[j] in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE)
         }
+        self._articulated, self._joints_of = self._prepare_articulations(env)
         robot = env.robots[0]
         self._eef_site = robot.eef_site_id
         self._grip_qpos = list(robot._ref_gripper_joint_pos_indexes)
@@ -105,7 +144,56 @@ class SceneReader:
             joints={name: float(d.qpos[adr]) for name, adr in self._joints.items()},
             facts=dict(facts or {}),
             table_z=self._table_z,
+            articulations={name: self._articulation(name, d) for name in self._articulated},
+            joints_of=self._joints_of,
         )
+
+    def _prepare_articulations(self, env):
+        """Per articulated joint: its id and the colliding geoms of the part it moves; and
+        per fixture or region, the joints that move it."""
+        m = self._model
+        kinds = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
+        out = {}
+        for j in range(m.njnt):
+            name = m.joint(j).name
+            if int(m.jnt_type[j]) not in kinds or not any(name.startswith(f"{f}_") for f in env.fixtures_dict):
+                continue
+            root = int(m.jnt_bodyid[j])
+            geoms = [g for g in range(m.ngeom) if _is_descendant(m, int(m.geom_bodyid[g]), root)
+                     and (m.geom_contype[g] or m.geom_conaffinity[g])]
+            out[name] = (j, np.array(geoms, dtype=np.int64))
+        joints_of: dict[str, tuple[str, ...]] = {}
+        for name in env.fixtures_dict:
+            joints_of[name] = tuple(j for j in env.get_object(name).joints if j in out)
+        for name, site in env.object_sites_dict.items():
+            joints = tuple(j for j in (getattr(site, "joints", None) or ()) if j in out)
+            if joints:
+                joints_of[name] = joints
+        return out, {k: v for k, v in joints_of.items() if v}
+
+    def _articulation(self, name: str, d) -> Articulation:
+        m = self._model
+        j, geoms = self._articulated[name]
+        bid = int(m.jnt_bodyid[j])
+        pos, quat = d.xpos[bid].copy(), d.xquat[bid].copy()
+        rot = d.xmat[bid].reshape(3, 3)
+        if len(geoms):
+            corners = _geom_corners(m, d, geoms)
+            local = (corners - pos) @ rot
+            part = Body(pos=pos, quat=quat, local_lo=local.min(0), local_hi=local.max(0),
+                        lo=corners.min(0), hi=corners.max(0))
+        else:
+            zero = np.zeros(3)
+            part = Body(pos=pos, quat=quat, local_lo=zero, local_hi=zero, lo=pos.copy(), hi=pos.copy())
+        boxes = []
+        for g in geoms:
+            gmat = d.geom_xmat[g].reshape(3, 3)
+            centre, half = m.geom_aabb[g, :3], m.geom_aabb[g, 3:]
+            boxes.append(Box(center=d.geom_xpos[g] + gmat @ centre, xmat=gmat.copy(), half=half.copy()))
+        hinge = m.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE
+        return Articulation(kind="hinge" if hinge else "slide", qpos=float(d.qpos[m.jnt_qposadr[j]]),
+                            range=m.jnt_range[j].copy(), axis=d.xaxis[j].copy(), anchor=d.xanchor[j].copy(),
+                            part=part, geoms=tuple(boxes))
 
     def _body(self, name: str, d) -> Body:
         bid = self._env.obj_body_id[name]

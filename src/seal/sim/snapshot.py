@@ -9,8 +9,11 @@ What "everything" is was found by experiment (see tests/test_snapshot.py):
   time, so it is history, not a function of the physics state (~2e-4 drift without it);
 - robosuite's step counter and clock (``timestep``, ``cur_time``).
 
-The OSC controller recomputes its goal from the current pose at every policy step, so it
-holds no history; restoring marks it stale so it re-reads the restored state.
+- the OSC controller's goal orientation (and position): robosuite keeps the previous
+  ``goal_ori`` whenever an action's rotation part is exactly zero, so the goal is history too
+  (scripted policies send zero rotations all the time; random actions never do).
+
+Restoring also marks the controller stale so it re-reads the restored pose.
 """
 
 from __future__ import annotations
@@ -29,6 +32,8 @@ class Snapshot:
     timestep: int
     cur_time: float
     steps: int = 0  # control steps of the episode so far, settle steps excluded
+    goal_ori: np.ndarray | None = None  # OSC controller goal orientation (3, 3)
+    goal_pos: np.ndarray | None = None  # OSC controller goal position (3,)
     id: str = field(default="", compare=False)
 
     def __post_init__(self) -> None:
@@ -37,6 +42,9 @@ class Snapshot:
             h.update(self.task_key.encode())
             h.update(np.ascontiguousarray(self.physics).tobytes())
             h.update(np.ascontiguousarray(self.gripper_action).tobytes())
+            for extra in (self.goal_ori, self.goal_pos):
+                if extra is not None:
+                    h.update(np.ascontiguousarray(extra).tobytes())
             h.update(f"{self.timestep}:{self.cur_time!r}:{self.steps}".encode())
             object.__setattr__(self, "id", h.hexdigest())
 

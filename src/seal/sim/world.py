@@ -119,6 +119,11 @@ class LiberoWorld:
         env.robots[0].gripper.current_action = np.zeros(env.robots[0].gripper.dof)
         env.timestep, env.cur_time, env.done = 0, 0.0, False
         self._after_state_change()
+        # A fresh controller's goal is the current pose; without this the previous episode's
+        # goal orientation survives (robosuite keeps it while rotation actions are zero).
+        controller = env.robots[0].controller
+        controller.update(force=True)
+        controller.reset_goal()
         if settle:
             for _ in range(SETTLE_STEPS):
                 self._physics_step(SETTLE_ACTION)
@@ -156,6 +161,8 @@ class LiberoWorld:
             timestep=int(env.timestep),
             cur_time=float(env.cur_time),
             steps=self._steps,
+            goal_ori=np.array(env.robots[0].controller.goal_ori, dtype=np.float64),
+            goal_pos=np.array(env.robots[0].controller.goal_pos, dtype=np.float64),
         )
 
     def restore(self, snap: Snapshot) -> None:
@@ -167,6 +174,10 @@ class LiberoWorld:
         env.timestep, env.cur_time, env.done = snap.timestep, snap.cur_time, False
         self._steps = snap.steps
         self._after_state_change()
+        controller = env.robots[0].controller
+        if snap.goal_ori is not None:
+            controller.goal_ori = snap.goal_ori.copy()
+            controller.goal_pos = snap.goal_pos.copy()
 
     # ---- observation --------------------------------------------------------------------
     def state_vector(self) -> np.ndarray:

@@ -18,7 +18,7 @@ import re
 from dataclasses import dataclass
 
 from seal.errors import InvalidInput
-from seal.sim.goals import GoalAtom
+from seal.sim.goals import PREDICATES as PREDICATE_NAMES, GoalAtom
 
 SKILLS = ("pick", "place", "open", "close", "turn_on", "turn_off")
 
@@ -105,6 +105,12 @@ def target_phrase(predicate: str, target: str, names: list[str], instruction: st
     """How to say where something goes, e.g. 'in the basket', 'to the right of the plate'."""
     if target in names and not target.endswith("_region") and not target.endswith("_side"):
         return f"on the {object_phrase(target, instruction)}"  # On(x, plate_1)
+    # A table region named after a nearby object: living_room_table_plate_right_region.
+    m = re.match(r"^\w+?_table_(\w+)_(left|right|front|back)_region$", target)
+    if m:
+        ref, side = m.groups()
+        ref_phrase = next((p for c, ps in NAMES.items() if c == ref for p in ps), ref.replace("_", " "))
+        return f"to the {side} of the {ref_phrase}"
     fixture = _fixture_of(target, names)
     if fixture is not None:
         rest = target[len(fixture) + 1 :]
@@ -126,12 +132,6 @@ def target_phrase(predicate: str, target: str, names: list[str], instruction: st
         if rest == "bottom_region":
             return f"under the {thing}"
         return f"{'in' if predicate == 'in' else 'on'} the {thing}"
-    # A table region named after a nearby object: living_room_table_plate_right_region.
-    m = re.match(r"^\w+?_table_(\w+)_(left|right|front|back)_region$", target)
-    if m:
-        ref, side = m.groups()
-        ref_phrase = next((p for c, ps in NAMES.items() if c == ref for p in ps), ref.replace("_", " "))
-        return f"to the {side} of the {ref_phrase}"
     return f"{'in' if predicate == 'in' else 'on'} the {target.replace('_', ' ')}"
 
 
@@ -145,7 +145,7 @@ def decompose(goal_atoms: list[GoalAtom], instruction: str, names: list[str], *,
     instruction = instruction.lower().rstrip(".")
     for atom in goal_atoms:
         if atom.predicate not in ("in", "on", "open", "close", "turnon", "turnoff"):
-            raise InvalidInput(f"unsupported predicate {atom} in task {task or instruction!r}")
+            raise InvalidInput(f"unsupported predicate {PREDICATE_NAMES.get(atom.predicate, atom.predicate)} ({atom}) in task {task or repr(instruction)}; supported: In, On, Open, Close, TurnOn, TurnOff")
     placements = [a for a in goal_atoms if a.predicate in ("in", "on")]
     goal_opens = {a.subject for a in goal_atoms if a.predicate == "open"}
     needs_open = [a.args[1] for a in placements if _is_drawer(a.args[1])
@@ -193,3 +193,25 @@ def decompose(goal_atoms: list[GoalAtom], instruction: str, names: list[str], *,
             skill = {"open": "open", "close": "close", "turnon": "turn_on", "turnoff": "turn_off"}[atom.predicate]
             plans.append(SubPlan(f"{verb} {thing}", skill, subject, atom))
     return plans
+
+
+def bddl_names(bddl_text: str) -> list[str]:
+    """Object and fixture instance names declared in a BDDL problem (``name - type`` lines)."""
+    names = []
+    for section in ("fixtures", "objects"):
+        m = re.search(rf"\(:{section}(.*?)\)", bddl_text, flags=re.S)
+        if m:
+            for line in m.group(1).splitlines():  # "plate_1 plate_2 - plate"
+                if " - " in line:
+                    names += line.split(" - ")[0].split()
+    return sorted(names)
+
+
+def plan_task(spec) -> list[SubPlan]:
+    """Sub-plans for a `TaskSpec` from its BDDL file alone (no simulator needed)."""
+    text = spec.bddl_path.read_text()
+    goal = text[text.index("(:goal") :]
+    atoms = [GoalAtom.from_bddl([x for x in a if x])
+             for a in re.findall(r"\((\w+)\s+([\w]+)(?:\s+([\w]+))?\)", goal)]
+    return decompose(atoms, spec.instruction, bddl_names(text), task=spec.key,
+                     initially_open=spec.initially_open())

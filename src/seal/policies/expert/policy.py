@@ -82,6 +82,7 @@ class ScriptedExpert:
         self._current: SubPlan | None = None
         self._attempts: list[_Attempt] = []
         self._round = 0
+        self._regions: list[str] = []
 
     @classmethod
     def for_world(cls, world, knobs: FailureKnobs | None = None, seed: int = 0) -> "ScriptedExpert":
@@ -115,6 +116,8 @@ class ScriptedExpert:
     def reason(self, obs: Observation) -> Reasoning:
         scene = _scene(obs)
         plans = self.plans(scene)
+        # Places a confused policy might put things instead (not the objects' start regions).
+        self._regions = sorted(n for n in scene.sites if n.endswith("_region") and not n.endswith("init_region"))
         done = progress(plans, scene)
         current = next((p for p, d in zip(plans, done) if not d), None)
         self._current = current
@@ -151,17 +154,12 @@ class ScriptedExpert:
         movers = sorted({a.subject for a in self.goal_atoms if a.predicate in ("in", "on")} - {sub.obj})
         if sub.skill == "pick" and movers:
             return str(rng.choice(movers)), sub.target
-        if sub.skill == "place" and self._last_scene is not None:
-            regions = [n for n in self._last_scene.sites if n != sub.target and not n.endswith("init_region")
-                       and n.endswith("_region")]
-            if regions:
-                return sub.obj, str(rng.choice(regions))
+        regions = [n for n in self._regions if n != sub.target]
+        if sub.skill == "place" and regions:
+            return sub.obj, str(rng.choice(regions))
         return sub.obj, sub.target
 
-    _last_scene: SceneState | None = None
-
     def _act_row(self, scene: SceneState, attempt: _Attempt) -> ActionChunk:
-        self._last_scene = scene
         sub = self._current
         first = self._skill_step(sub, scene, attempt)
         if first.done:
