@@ -8,12 +8,16 @@ never override a user's explicit choice.
 from __future__ import annotations
 
 import atexit
+import logging
 import os
 import weakref
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 if os.environ["MUJOCO_GL"] in ("egl", "osmesa"):
     os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
+
+# robosuite warns on import that no private macro file exists; nothing a SEAL user can act on.
+logging.getLogger("robosuite_logs").addFilter(lambda record: "macro" not in record.getMessage())
 
 _live: "weakref.WeakSet" = weakref.WeakSet()
 _registered = False
