@@ -10,6 +10,8 @@ and what it will do now) and acting (``<act>``: action chunks). SEAL only needs 
 
 Policies keep per-row state between ``act`` calls (e.g. random streams); ``begin`` starts a
 new sub-plan attempt for ``k`` rows.
+
+Contract: chunks are PREDICT_HORIZON actions in [-1, 1]; callers execute ACTION_HORIZON of them.
 """
 
 from __future__ import annotations
@@ -57,8 +59,9 @@ class ActionChunk:
 class ReasoningPolicy(Protocol):
     """Anything that writes sub-plans and acts on them (scripted expert, openpi client, ...)."""
 
-    def needs_privileged_state(self) -> bool:
-        """Whether observations must carry the privileged `SceneState` (scripted policies)."""
+    def privileged_atoms(self) -> list[str] | None:
+        """Goal atoms a scripted policy reads from the privileged `SceneState`; None for a
+        policy that sees only images and proprioception (every real VLA)."""
         ...
 
     def reset(self, instruction: str, seed: int) -> None:
@@ -71,4 +74,8 @@ class ReasoningPolicy(Protocol):
         """Start ``k`` parallel attempts at the current sub-plan (rows of later ``act`` calls)."""
         ...
 
-    def act(self, obs_batch: Sequence[Observation], reasoning: Reasoning) -> list[ActionChunk]: ...
+    def act(self, obs_batch: Sequence[Observation], reasoning: Reasoning,
+            rows: Sequence[int] | None = None) -> list[ActionChunk]:
+        """One chunk per observation; ``rows`` says which of the ``begin(k)`` attempts each
+        observation belongs to (default: 0..n-1), so finished candidates can drop out."""
+        ...

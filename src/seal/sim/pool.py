@@ -83,7 +83,8 @@ def _h_reset(world, slots, payload):
 
 
 def _h_step(world, slots, payload):
-    chunks, stop_on_success, observe = payload
+    chunks, stop_on_success, observe = payload[:3]
+    images, atoms = payload[3] if len(payload) > 3 else (True, None)
     out = []
     for i, actions in chunks.items():
         world.restore(slots[i])
@@ -97,17 +98,17 @@ def _h_step(world, slots, payload):
         if not res.sim_error:
             slots[i] = res.snapshot = world.snapshot()
             if observe:
-                res.observation = world.observe()
+                res.observation = world.observe(images=images, privileged_atoms=atoms)
         out.append(res)
     return out
 
 
 def _h_observe(world, slots, payload):
-    ids, images = payload
+    ids, images, atoms = payload
     out = []
     for i in ids:
         world.restore(slots[i])
-        out.append(world.observe(images=images))
+        out.append(world.observe(images=images, privileged_atoms=atoms))
     return out
 
 
@@ -220,10 +221,12 @@ class EnvPool:
         self._latest = [snap] * self.k
 
     def step(self, chunks: dict[int, np.ndarray] | list[np.ndarray | None], *, stop_on_success: bool = False,
-             observe: bool = False) -> list[SlotResult]:
+             observe: bool = False, images: bool = True, privileged_atoms=None) -> list[SlotResult]:
         """Step slots with their own action chunks, in parallel across workers.
 
         ``chunks`` maps slot -> (n, 7) actions (a list means slot = position; None skips a slot).
+        With ``observe`` each result carries the observation after the chunk (``images`` and
+        ``privileged_atoms`` as in `LiberoWorld.observe`), saving a round trip.
         Returns one `SlotResult` per stepped slot, in slot order.
         """
         if isinstance(chunks, (list, tuple)):
@@ -236,7 +239,9 @@ class EnvPool:
         per_worker: dict[int, dict] = {}
         for slot, c in chunks.items():
             per_worker.setdefault(self._owner[slot], {})[slot] = np.asarray(c, dtype=np.float64)
-        answers = self._scatter({wi: ("step", (ch, stop_on_success, observe)) for wi, ch in per_worker.items()})
+        obs_opts = (images, None if privileged_atoms is None else list(privileged_atoms))
+        answers = self._scatter({wi: ("step", (ch, stop_on_success, observe, obs_opts))
+                                 for wi, ch in per_worker.items()})
         results: list[SlotResult] = []
         for wi, ch in per_worker.items():
             answer = answers[wi]
@@ -249,8 +254,9 @@ class EnvPool:
                 results.append(res)
         return sorted(results, key=lambda r: r.slot)
 
-    def observe(self, slots=None, *, images: bool = True) -> list[Observation]:
-        return self._gather("observe", slots, lambda ids: (ids, images))
+    def observe(self, slots=None, *, images: bool = True, privileged_atoms=None) -> list[Observation]:
+        atoms = None if privileged_atoms is None else list(privileged_atoms)
+        return self._gather("observe", slots, lambda ids: (ids, images, atoms))
 
     def check(self, atoms, slots=None) -> list[dict[str, bool]]:
         return self._gather("check", slots, lambda ids: (ids, list(atoms)))

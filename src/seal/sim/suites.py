@@ -51,6 +51,15 @@ class TaskSpec:
         init = text[text.index("(:init") : text.index("(:goal")]
         return tuple(re.findall(r"\(Open\s+([\w]+)\)", init, flags=re.IGNORECASE))
 
+    def goal_atoms(self) -> list["GoalAtom"]:
+        """The conjuncts of the task's BDDL goal, in file order."""
+        from seal.sim.goals import GoalAtom
+
+        text = self.bddl_path.read_text()
+        goal = text[text.index("(:goal") :]
+        return [GoalAtom.from_bddl([x for x in a if x])
+                for a in re.findall(r"\((\w+)\s+(\w+)(?:\s+(\w+))?\)", goal)]
+
     def init_states(self) -> np.ndarray:
         """The official init states, shape (n, state_dim); loaded from the package's data."""
         return _load_init_states(self.init_states_path)

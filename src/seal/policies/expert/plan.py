@@ -23,24 +23,25 @@ from seal.sim.goals import PREDICATES as PREDICATE_NAMES, GoalAtom
 SKILLS = ("pick", "place", "open", "close", "turn_on", "turn_off")
 
 # How an object category is called, most specific first; the first phrase found in the
-# instruction wins, so "cream cheese box" is used when the instruction says so.
+# instruction wins, so the plan echoes the instruction's wording ("cream cheese box", or
+# "box of cheese" in the object-property suite), as a reasoning VLA would.
 NAMES: dict[str, tuple[str, ...]] = {
-    "alphabet_soup": ("alphabet soup",),
-    "tomato_sauce": ("tomato sauce",),
-    "cream_cheese": ("cream cheese box", "cream cheese"),
-    "butter": ("butter",),
+    "alphabet_soup": ("alphabet soup", "can of soup"),
+    "tomato_sauce": ("tomato sauce", "can of sauce"),
+    "cream_cheese": ("cream cheese box", "box of cheese", "cream cheese"),
+    "butter": ("box of butter", "butter"),
     "ketchup": ("ketchup",),
     "milk": ("milk",),
     "orange_juice": ("orange juice",),
-    "chocolate_pudding": ("chocolate pudding",),
+    "chocolate_pudding": ("chocolate pudding", "brown chocolate"),
     "new_salad_dressing": ("salad dressing",),
     "bbq_sauce": ("bbq sauce",),
-    "porcelain_mug": ("white mug",),
-    "white_yellow_mug": ("yellow and white mug",),
+    "porcelain_mug": ("white mug", "pure white cup"),
+    "white_yellow_mug": ("yellow and white mug", "middle mug"),
     "red_coffee_mug": ("red mug",),
-    "akita_black_bowl": ("black bowl", "bowl"),
+    "akita_black_bowl": ("black bowl", "middle bowl", "bowl"),
     "white_bowl": ("white bowl", "bowl"),
-    "moka_pot": ("moka pot",),
+    "moka_pot": ("moka pot", "moka machine", "moka coffee maker"),
     "chefmate_8_frypan": ("frying pan",),
     "black_book": ("book",),
     "yellow_book": ("book",),
@@ -48,7 +49,7 @@ NAMES: dict[str, tuple[str, ...]] = {
     "plate": ("plate",),
     "basket": ("basket",),
     "wooden_tray": ("tray",),
-    "flat_stove": ("stove",),
+    "flat_stove": ("stove", "cooktop"),
     "microwave": ("microwave",),
     "white_cabinet": ("cabinet",),
     "wooden_cabinet": ("cabinet",),
@@ -76,7 +77,9 @@ def category(name: str) -> str:
 
 
 def object_phrase(name: str, instruction: str = "") -> str:
-    if name in PLATE_SIDES and PLATE_SIDES[name] in instruction:
+    # Two plates told apart by side: say which, even when the instruction only says
+    # "the left one ... the right one".
+    if name in PLATE_SIDES and (PLATE_SIDES[name] in instruction or ("left" in instruction and "right" in instruction)):
         return PLATE_SIDES[name]
     options = NAMES.get(category(name), (category(name).replace("_", " "),))
     for phrase in options:
@@ -210,8 +213,5 @@ def bddl_names(bddl_text: str) -> list[str]:
 def plan_task(spec) -> list[SubPlan]:
     """Sub-plans for a `TaskSpec` from its BDDL file alone (no simulator needed)."""
     text = spec.bddl_path.read_text()
-    goal = text[text.index("(:goal") :]
-    atoms = [GoalAtom.from_bddl([x for x in a if x])
-             for a in re.findall(r"\((\w+)\s+([\w]+)(?:\s+([\w]+))?\)", goal)]
-    return decompose(atoms, spec.instruction, bddl_names(text), task=spec.key,
+    return decompose(spec.goal_atoms(), spec.instruction, bddl_names(text), task=spec.key,
                      initially_open=spec.initially_open())

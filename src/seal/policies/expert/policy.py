@@ -128,13 +128,17 @@ class ScriptedExpert:
         self._round += 1
         self._attempts = [self._draw(np.random.default_rng([self.seed, self._round, row])) for row in range(k)]
 
-    def act(self, obs_batch: Sequence[Observation], reasoning: Reasoning) -> list[ActionChunk]:
+    def act(self, obs_batch: Sequence[Observation], reasoning: Reasoning,
+            rows: Sequence[int] | None = None) -> list[ActionChunk]:
         if self._current is None or reasoning.now != self._current.text:
             raise InvalidInput(f"act() for sub-plan {reasoning.now!r}, but the last reason() chose "
                                f"{self._current.text if self._current else 'nothing'!r}")
-        if len(self._attempts) != len(obs_batch):
-            self.begin(len(obs_batch))
-        return [self._act_row(_scene(o), a) for o, a in zip(obs_batch, self._attempts)]
+        rows = list(range(len(obs_batch))) if rows is None else list(rows)
+        if len(rows) != len(obs_batch):
+            raise InvalidInput(f"act() got {len(obs_batch)} observations for {len(rows)} rows")
+        if not self._attempts or max(rows) >= len(self._attempts):
+            self.begin(max(rows) + 1)
+        return [self._act_row(_scene(o), self._attempts[r]) for o, r in zip(obs_batch, rows)]
 
     # ---- internals ----------------------------------------------------------------------------
     def _draw(self, rng: np.random.Generator) -> _Attempt:

@@ -1,0 +1,1 @@
+"""The Hypothesize -> Predict -> Verify -> Commit loop (see `engine.py`)."""

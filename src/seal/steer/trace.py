@@ -1,0 +1,48 @@
+"""Structured episode traces: one JSON object per line, written as events happen.
+
+Events: ``subplan`` (reasoning at a sub-plan start), ``candidate`` (one per candidate per round:
+how it ended, its verdict with rationale, its end snapshot id, timestamps), ``commit`` (the
+winner), ``episode_end``. Timestamps are seconds since the trace was opened, so verification
+overlap and early exit can be read off directly.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+
+class Trace:
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._file = open(self.path, "w")
+        self._t0 = time.perf_counter()
+
+    def write(self, event: str, **fields) -> None:
+        for key in ("t_start", "t_end", "t_verified"):
+            if fields.get(key):
+                fields[key] = round(fields[key] - self._t0, 4)
+        record = {"event": event, "t": round(time.perf_counter() - self._t0, 4), **fields}
+        self._file.write(json.dumps(record, default=_plain) + "\n")
+        self._file.flush()  # a crash keeps everything up to the last event
+
+    def close(self) -> None:
+        self._file.close()
+
+    def __enter__(self) -> "Trace":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def read_trace(path: Path) -> list[dict]:
+    return [json.loads(line) for line in Path(path).read_text().splitlines() if line.strip()]
+
+
+def _plain(obj):
+    if hasattr(obj, "tolist"):
+        return obj.tolist()
+    return str(obj)

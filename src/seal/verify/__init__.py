@@ -1,0 +1,1 @@
+"""Who judges: verifiers decide whether a predicted outcome matches a sub-plan."""
