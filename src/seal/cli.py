@@ -11,27 +11,31 @@ from seal.errors import SealError
 
 
 def _cmd_run(args) -> int:
-    from rich.progress import Progress
+    from rich.console import Console
 
-    from seal.episode import run_policy_episode, write_summary
-    from seal.policies.expert.policy import FailureKnobs, ScriptedExpert
-    from seal.sim.world import LiberoWorld
+    from seal.policies.expert.policy import FailureKnobs
+    from seal.sim.world import PhysicsMismatch
+    from seal.steer.engine import SteerConfig
+    from seal.steer.run import run_steered
+    from seal.verify import make_verifier
 
-    knobs = FailureKnobs.named(args.knobs)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    world = LiberoWorld((args.suite, args.task), render_mode=args.render)
-    try:
-        policy = ScriptedExpert.for_world(world, knobs, seed=args.init)
-        with Progress(transient=True) as bar:
-            job = bar.add_task(f"{world.task.key} init {args.init}", total=args.max_steps or world.task.max_steps)
-            result = run_policy_episode(world, policy, init_index=args.init, max_steps=args.max_steps,
-                                        video_path=out / "episode.mp4",
-                                        progress=lambda s, n: bar.update(job, completed=s))
-    finally:
-        world.close()
-    write_summary(result, out / "summary.json")
-    print(json.dumps({k: v for k, v in result.__dict__.items() if k != "reasoning"}, indent=2))
+    config = SteerConfig(method=args.method, k=args.k, rounds=args.rounds, mode=args.mode,
+                         max_steps=args.max_steps, seed=args.seed)
+    verifier = None if args.method != "seal" else make_verifier(
+        args.verifier, model=args.model, base_url=args.base_url,
+        false_positive=args.false_positive, false_negative=args.false_negative, seed=args.seed)
+    mismatch = None
+    if args.mismatch:
+        f, m, d = (float(x) for x in args.mismatch.split(","))
+        mismatch = PhysicsMismatch(friction=f, mass=m, damping=d)
+    console = Console(stderr=True)
+    with console.status(f"{args.method} on {args.suite}/{args.task} init {args.init} (K={config.effective_k})"):
+        result = run_steered(args.suite, args.task, args.init, Path(args.out), config=config, verifier=verifier,
+                             knobs=FailureKnobs.named(args.knobs), video=not args.no_video, grids=not args.no_grids,
+                             mismatch=mismatch, render_mode=args.render)
+    keys = ("task", "method", "init_index", "success", "sim_error", "steps", "wall_s", "subplans", "goal_status",
+            "verifier_calls", "rounds", "fallbacks", "divergence", "timing", "trace")
+    print(json.dumps({k: getattr(result, k) for k in keys}, indent=2))
     return 0
 
 
@@ -68,14 +72,27 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="seal", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
 
-    run = sub.add_parser("run", help="run one LIBERO episode and write a video and a summary")
+    run = sub.add_parser("run", help="one steered LIBERO episode: video, trace, candidate grids, summary")
     run.add_argument("--suite", default="libero_10")
     run.add_argument("--task", type=int, default=0)
     run.add_argument("--init", type=int, default=0, help="official init state index")
-    run.add_argument("--max-steps", type=int, default=None, help="default: the suite's limit")
-    run.add_argument("--render", default="stock", choices=["stock", "fast"])
-    run.add_argument("--knobs", default="clean", choices=["clean", "misaligned"],
+    run.add_argument("--method", default="seal", choices=["base", "random", "seal"])
+    run.add_argument("--k", type=int, default=10, help="candidates per sub-plan")
+    run.add_argument("--rounds", type=int, default=2, help="sampling rounds before the fallback")
+    run.add_argument("--verifier", default="oracle", help="oracle | openai | gemini")
+    run.add_argument("--model", default=None, help="VLM model name (openai/gemini verifiers)")
+    run.add_argument("--base-url", default=None, help="OpenAI-compatible server URL (default: OPENAI_BASE_URL)")
+    run.add_argument("--false-positive", type=float, default=0.0, help="noisy verifier: false-positive rate")
+    run.add_argument("--false-negative", type=float, default=0.0, help="noisy verifier: false-negative rate")
+    run.add_argument("--mode", default="sync", choices=["sync", "replay"])
+    run.add_argument("--mismatch", default="", help="prediction physics scales 'friction,mass,damping', e.g. 1.3,0.8,1.2")
+    run.add_argument("--knobs", default="misaligned", choices=["clean", "misaligned"],
                      help="the scripted expert's failure setting")
+    run.add_argument("--max-steps", type=int, default=None, help="default: the suite's limit")
+    run.add_argument("--seed", type=int, default=0)
+    run.add_argument("--render", default="stock", choices=["stock", "fast"])
+    run.add_argument("--no-video", action="store_true")
+    run.add_argument("--no-grids", action="store_true")
     run.add_argument("--out", default="runs/demo")
     run.set_defaults(func=_cmd_run)
 

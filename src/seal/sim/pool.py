@@ -45,10 +45,10 @@ class SlotResult:
 
 
 # ---- worker side ----------------------------------------------------------------------------
-def _worker_main(conn: Connection, task: TaskSpec, render_mode: str) -> None:
+def _worker_main(conn: Connection, task: TaskSpec, render_mode: str, physics=None) -> None:
     from seal.sim.world import LiberoWorld
 
-    world = LiberoWorld(task, render_mode=render_mode)
+    world = LiberoWorld(task, render_mode=render_mode, physics=physics)
     slots: dict[int, Snapshot] = {}
     conn.send(("ready", os.getpid()))
     while True:
@@ -147,9 +147,9 @@ _HANDLERS = {
 
 # ---- parent side ----------------------------------------------------------------------------
 class _Worker:
-    def __init__(self, ctx, task: TaskSpec, render_mode: str):
+    def __init__(self, ctx, task: TaskSpec, render_mode: str, physics=None):
         self.conn, child = ctx.Pipe()
-        self.process = ctx.Process(target=_worker_main, args=(child, task, render_mode), daemon=True)
+        self.process = ctx.Process(target=_worker_main, args=(child, task, render_mode, physics), daemon=True)
         self.process.start()
         child.close()
 
@@ -179,7 +179,7 @@ class EnvPool:
     """K slots of one task's world over ``workers`` processes (default: min(K, cores))."""
 
     def __init__(self, task: TaskSpec | tuple[str, int], k: int, *, workers: int | None = None,
-                 render_mode: str = "stock", timeout: float = 600.0):
+                 render_mode: str = "stock", timeout: float = 600.0, physics=None):
         if not isinstance(task, TaskSpec):
             task = get_task(*task)
         if k < 1:
@@ -189,10 +189,11 @@ class EnvPool:
         if not 1 <= workers <= k:
             raise InvalidInput(f"workers must be in 1..{k} for k={k}, got {workers}")
         self.task, self.k, self.render_mode, self.timeout = task, k, render_mode, timeout
+        self.physics = physics  # a PhysicsMismatch for every slot's world, or None
         self._ctx = mp.get_context("spawn")  # never fork a process holding GL/MuJoCo state
         self._owner = [i % workers for i in range(k)]  # slot -> worker index
         self._latest: list[Snapshot | None] = [None] * k
-        self._workers = [_Worker(self._ctx, task, render_mode) for _ in range(workers)]
+        self._workers = [_Worker(self._ctx, task, render_mode, physics) for _ in range(workers)]
         for w in self._workers:
             w.wait_ready(timeout)
         self.crashes = 0
@@ -336,7 +337,7 @@ class EnvPool:
     def _respawn(self, wi: int) -> None:
         self.crashes += 1
         self._workers[wi].kill()
-        worker = _Worker(self._ctx, self.task, self.render_mode)
+        worker = _Worker(self._ctx, self.task, self.render_mode, self.physics)
         worker.wait_ready(self.timeout)
         self._workers[wi] = worker
         # Put each of its slots back where it was last seen.

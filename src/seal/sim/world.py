@@ -43,6 +43,31 @@ _BAD_WARNINGS = (
 )
 
 
+@dataclass(frozen=True)
+class PhysicsMismatch:
+    """Scale factors that make a world a deliberately imperfect model of another.
+
+    Used for prediction worlds to study steering with a world model that is not the real
+    dynamics: contact friction, body masses and joint damping are scaled in place.
+    """
+
+    friction: float = 1.0
+    mass: float = 1.0
+    damping: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name in ("friction", "mass", "damping"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and 0.1 <= value <= 10.0):
+                raise InvalidInput(f"physics mismatch {name}={value!r} must be a factor in [0.1, 10]")
+
+    def apply(self, model: mujoco.MjModel) -> None:
+        model.geom_friction[:] *= self.friction
+        model.body_mass[:] *= self.mass
+        model.body_inertia[:] *= self.mass
+        model.dof_damping[:] *= self.damping
+
+
 @dataclass
 class StepResult:
     success: bool  # LIBERO's own success check on the new state
@@ -71,7 +96,8 @@ def _build_robosuite_env(task: TaskSpec):
 class LiberoWorld:
     """A single LIBERO task world. Not thread-safe; one per process or per pool slot."""
 
-    def __init__(self, task: TaskSpec | tuple[str, int], *, render_mode: str = "stock"):
+    def __init__(self, task: TaskSpec | tuple[str, int], *, render_mode: str = "stock",
+                 physics: PhysicsMismatch | None = None):
         if not isinstance(task, TaskSpec):
             task = get_task(*task)
         if render_mode not in RENDER_MODES:
@@ -79,6 +105,9 @@ class LiberoWorld:
         self.task = task
         self.render_mode = render_mode
         self._env = _build_robosuite_env(task)
+        self.physics = physics
+        if physics is not None:
+            physics.apply(self.model)
         self._init_states = task.init_states()
         self._renderer: SceneRenderer | None = None
         self._scene: SceneReader | None = None  # built on first privileged read

@@ -105,7 +105,8 @@ class SteerResult:
 class Steerer:
     """Runs steered episodes of one task on an `EnvPool` of at least K slots."""
 
-    def __init__(self, pool, policy, verifier, config: SteerConfig, *, eval_world=None, trace: Trace | None = None):
+    def __init__(self, pool, policy, verifier, config: SteerConfig, *, eval_world=None, trace: Trace | None = None,
+                 grid_dir=None):
         if config.method == "seal" and verifier is None:
             raise InvalidInput("method 'seal' needs a verifier (e.g. --verifier oracle)")
         if pool.k < config.effective_k:
@@ -115,6 +116,8 @@ class Steerer:
         self.pool, self.policy, self.config, self.trace = pool, policy, config, trace
         self.verifier = verifier
         self.eval_world = eval_world
+        self.grid_dir = grid_dir  # write a candidate contact sheet per round here (costs K renders)
+        self._subplan_index = 0
         self._rng = np.random.default_rng(config.seed)
         self._atoms = policy.privileged_atoms() if hasattr(policy, "privileged_atoms") else None
         self._needs_images = self._atoms is None  # a real VLA looks at images; the expert does not
@@ -126,6 +129,7 @@ class Steerer:
         start = time.perf_counter()
         result = SteerResult(task=pool.task.key, instruction=pool.task.instruction, init_index=init_index,
                              method=cfg.method)
+        self._result = result
         committed = pool.reset(init_index)
         if self.eval_world is not None:
             self.eval_world.reset(init_index)
@@ -142,6 +146,7 @@ class Steerer:
                     result.subplans = list(reasoning.plans)
                 if reasoning.finished:
                     break
+                self._subplan_index += 1
                 self._emit("subplan", step=committed.steps, text=reasoning.now, reasoning=reasoning.text())
                 winner = self._steer_subplan(committed, obs, reasoning, max_steps, background, result)
                 if winner is None:  # every candidate hit a simulator error
@@ -236,6 +241,9 @@ class Steerer:
                 c.ended_by = "stopped"
             if c.future is not None and not c.future.done():
                 c.future.cancel()
+        if self.grid_dir is not None:
+            self._grid(r, cands, reasoning)
+        for c in cands:
             self._emit("candidate", round=r, slot=c.slot, steps=c.steps, ended_by=c.ended_by, error=c.error,
                        snapshot=c.snapshot.id if c.snapshot else None,
                        verdict=_verdict_dict(c.verdict), t_start=c.t_start, t_end=c.t_end, t_verified=c.t_verified)
@@ -269,7 +277,7 @@ class Steerer:
         passed = []
         for c in cands:
             if c.future is not None and c.future.done() and c.verdict is None:
-                c.verdict, c.t_verified = c.future.result(), time.perf_counter()
+                self._take_verdict(c)
             if c.verdict is not None and c.verdict.passed:
                 passed.append(c)
         return min(passed, key=lambda c: c.t_verified) if passed else None
@@ -279,25 +287,28 @@ class Steerer:
             return None
         t0 = time.perf_counter()
         for c in sorted((c for c in cands if c.future is not None and c.verdict is None), key=lambda c: c.t_end):
-            c.verdict, c.t_verified = c.future.result(), time.perf_counter()
+            self._take_verdict(c)
             if c.verdict.passed:
                 break
         result.timing["verify_wait_s"] += time.perf_counter() - t0
         return self._first_pass(cands)
 
+    def _take_verdict(self, c: Candidate) -> None:
+        """Collect a finished verification; every call is paid for, winner or not."""
+        c.verdict, c.t_verified = c.future.result(), time.perf_counter()
+        self._result.input_tokens += c.verdict.input_tokens
+        self._result.output_tokens += c.verdict.output_tokens
+        self._result.cost_usd += c.verdict.cost_usd
+
     # ---- commit ----------------------------------------------------------------------------
     def _commit(self, winner: Candidate, committed: Snapshot, result: SteerResult) -> Snapshot:
-        for c in [winner]:
-            if c.verdict is not None:
-                result.input_tokens += c.verdict.input_tokens
-                result.output_tokens += c.verdict.output_tokens
-                result.cost_usd += c.verdict.cost_usd
         actions = np.concatenate(winner.actions) if winner.actions else np.zeros((0, 7))
         result.executed_actions.extend(actions.tolist())
         target = winner.snapshot
         if self.config.mode == "replay":
             # Execute as a real robot would, then trust what happened over what was predicted.
-            self.eval_world.step_chunk(actions) if len(actions) else None
+            if len(actions):
+                self.eval_world.step_chunk(actions)
             real = self.eval_world.snapshot()
             nq = self.eval_world.model.nq
             gap = float(np.abs(real.physics[1 : 1 + nq] - target.physics[1 : 1 + nq]).max())
@@ -307,6 +318,20 @@ class Steerer:
         self._emit("commit", slot=winner.slot, round=winner.round, steps=target.steps, snapshot=target.id,
                    ended_by=winner.ended_by, verdict=_verdict_dict(winner.verdict))
         return target
+
+    def _grid(self, r: int, cands: list[Candidate], reasoning: Reasoning) -> None:
+        from pathlib import Path
+
+        from seal.sim.observation import to_policy_image
+        from seal.steer.grid import candidate_grid
+
+        shown = [c for c in cands if c.snapshot is not None]
+        views = self.pool.render(("agentview",), slots=[c.slot for c in shown])  # slots still hold end states
+        labels = [f"#{c.slot} {c.steps} steps, {c.ended_by}" for c in shown]
+        verdicts = [c.verdict.success if c.verdict is not None else None for c in shown]
+        candidate_grid([to_policy_image(v["agentview"]) for v in views], labels, verdicts,
+                       Path(self.grid_dir) / f"subplan{self._subplan_index:02d}_round{r}.png",
+                       title=f"{reasoning.now} (round {r})")
 
     # ---- small helpers ------------------------------------------------------------------------
     def _observe(self, slot: int, *, images: bool, atoms) -> Observation:

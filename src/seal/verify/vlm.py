@@ -505,6 +505,8 @@ class VLMVerifier:
             return self._from_cache(hit, key, started)
 
         state = self._loop_state()
+        # The slot is held through backoff sleeps on purpose: under 429s this verifier slows
+        # down instead of letting the waiting requests pile onto the server.
         async with state.semaphore:
             answer, attempts, error = await self._call_with_retries(state.backend, prompt, images)
         latency = time.perf_counter() - started
@@ -531,7 +533,11 @@ class VLMVerifier:
 
     def _settings(self) -> dict:
         c = self.config
-        return {"temperature": c.temperature, "max_output_tokens": c.max_output_tokens, "image_format": c.image_format}
+        return {
+            "temperature": c.temperature,
+            "max_output_tokens": c.max_output_tokens,
+            "image_format": c.image_format,
+        }
 
     def _loop_state(self) -> _LoopState:
         # An SDK client's connection pool and an asyncio.Semaphore both belong to the loop
@@ -661,6 +667,7 @@ def make_vlm_verifier(
     valid = set(VLMConfig.__dataclass_fields__) - {"backend", "model", "base_url"}
     unknown = sorted(set(opts) - valid)
     if unknown:
-        raise InvalidInput(f"unknown VLM verifier option(s) {unknown}; valid: {sorted(valid | {'api_key', 'prices'})}")
+        valid_names = sorted(valid | {"api_key", "prices"})
+        raise InvalidInput(f"unknown VLM verifier option(s) {unknown}; valid: {valid_names}")
     config = VLMConfig(backend=backend, model=model or DEFAULT_MODELS[backend], base_url=base_url, **opts)
     return VLMVerifier(config, api_key=api_key, prices=prices)

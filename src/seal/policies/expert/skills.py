@@ -23,15 +23,24 @@ YAW_GAIN = 2.0  # action per radian of yaw error
 OPEN, CLOSE = -1.0, 1.0
 HOVER = 0.10  # clearance above an object before descending onto it
 LIFT = 0.22  # height above the table a picked object is raised to
-CARRY = 0.12  # clearance of a carried object above whatever it passes over
 OPEN_WIDTH = 0.07  # finger gap that counts as open
 EMPTY_WIDTH = 0.011  # finger gap of a gripper closed on nothing (~0.008)
+RIM_EMPTY_WIDTH = 0.004  # below any cup wall
 XY_TOL, Z_TOL = 0.008, 0.008
+RELEASE_XY_TOL = 0.012  # how far the carried object's origin may be off the target when let go
 YAW_TOL = 0.1  # radians of finger-axis error allowed before descending
 # Panda hand geometry relative to the eef site: the fingertips reach 13 mm below it and the
 # pads span 5 mm below to 12 mm above it. Going lower presses the fingertips into the table.
 FINGERTIP_BELOW = 0.013
 TABLE_CLEARANCE = 0.003
+# Footprint of the open hand around the eef site, in the finger-axis frame (along, across):
+# the hand body spans +-10.5 cm along the finger axis from 2.2 cm above the site up; the open
+# fingers hang at 3.2-6.8 cm either side. Neighbours inside it block the descent.
+HAND_HALF = (0.105, 0.041)
+HAND_ABOVE = 0.022
+FINGER_SPAN = (0.032, 0.068, 0.014)  # inner, outer along the axis; half width across
+PAD_GAP = 0.076  # free space between the open pads
+TURN_COST = 1.0  # placing: penalty per radian of wrist turn, against hand-overlap penalties
 # Objects picked by their rim (one finger inside, one outside the wall) rather than across.
 RIM_GRASP = ("mug", "bowl")
 # A mug's bounding box includes its handle; the cup itself is shifted away from the handle.
@@ -99,44 +108,87 @@ def _min_grasp_z(s: SceneState) -> float:
 
 
 def grasp_pose(s: SceneState, name: str, knobs: Knobs) -> tuple[np.ndarray, float]:
-    """Where the gripper centre goes to grasp ``name``, and the finger-axis yaw to use."""
+    """Where the gripper centre goes to grasp ``name``, and the finger-axis yaw to use.
+
+    Of a few candidate grasps (both rim sides; shifts along the finger axis within the slack
+    the open fingers leave; the other side of a box if it fits), the one whose open hand
+    overlaps other objects least wins, so the hand does not land on a neighbour's rim.
+    """
     body = s.bodies[name]
-    top = body.hi[2]
-    height = body.size[2]
-    if _is_rim(name):
-        point, yaw = _rim_pose(s, name, body)
-    else:
-        centre = body.center
-        point = np.array([centre[0], centre[1], top - min(0.03, 0.5 * height)])
-        ext = body.local_hi - body.local_lo
-        # close across the object's narrower horizontal side
-        yaw = body.yaw + (0.0 if ext[0] <= ext[1] else np.pi / 2)
-    point[2] = max(point[2], _min_grasp_z(s))  # flat objects: pads low, fingertips clear
+    candidates = _rim_candidates(s, name, body) if _is_rim(name) else _box_candidates(s, body)
+    point, yaw = min(candidates, key=lambda c: c[2] + _intrusion(s, c[0], c[1], name))[:2]
     return point + knobs.grasp_offset, yaw
 
 
-def _rim_pose(s: SceneState, name: str, body: Body) -> tuple[np.ndarray, float]:
-    """Pinch a cup's wall from above, closing radially, on the side nearest the gripper.
+def _box_candidates(s: SceneState, body: Body) -> list[tuple[np.ndarray, float, float]]:
+    """(point, yaw, preference cost): across the narrow side first, centred first."""
+    centre = body.center
+    # Pads just below the top; flat objects as low as the fingertips allow.
+    z = max(body.hi[2] - min(0.03, 0.5 * body.size[2]), _min_grasp_z(s))
+    ext = body.local_hi - body.local_lo
+    narrow, wide = (0.0, np.pi / 2) if ext[0] <= ext[1] else (np.pi / 2, 0.0)
+    out = []
+    for turn, cost in ((narrow, 0.0), (wide, 0.05)):
+        across = ext[0] if turn == 0.0 else ext[1]  # object width between the fingers
+        slack = (PAD_GAP - across) / 2 - 0.006
+        if slack < 0:
+            continue
+        yaw = body.yaw + turn
+        axis = np.array([np.cos(yaw), np.sin(yaw)])
+        for shift in np.linspace(-slack, slack, 5) if slack > 0.004 else (0.0,):
+            xy = centre[:2] + shift * axis
+            out.append((np.array([*xy, z]), yaw, cost + abs(shift)))
+    if not out:  # wider than the open hand both ways: try anyway, across the narrow side
+        out.append((np.array([*centre[:2], z]), body.yaw + narrow, 0.0))
+    return out
+
+
+def _intrusion(s: SceneState, point: np.ndarray, yaw: float, own: str) -> float:
+    """How much other objects' boxes overlap the open hand at ``point`` (a penalty, ~m^2 x 1e3)."""
+    axis = np.array([np.cos(yaw), np.sin(yaw)])
+    perp = np.array([-axis[1], axis[0]])
+    total = 0.0
+    for n, b in s.bodies.items():
+        if n == own or b.lo[2] > point[2] + 0.13:
+            continue
+        corners = np.array([[x, y] for x in (b.lo[0], b.hi[0]) for y in (b.lo[1], b.hi[1])]) - point[:2]
+        along, across = corners @ axis, corners @ perp
+        if b.hi[2] > point[2] + HAND_ABOVE:
+            total += _overlap(along, -HAND_HALF[0], HAND_HALF[0]) * _overlap(across, -HAND_HALF[1], HAND_HALF[1])
+        if b.hi[2] > point[2] - FINGERTIP_BELOW:
+            inner, outer, half = FINGER_SPAN
+            fingers = _overlap(along, inner, outer) + _overlap(along, -outer, -inner)
+            total += fingers * _overlap(across, -half, half)
+    return 1e3 * total
+
+
+def _overlap(values: np.ndarray, lo: float, hi: float) -> float:
+    return max(0.0, min(values.max(), hi) - max(values.min(), lo))
+
+
+def _rim_candidates(s: SceneState, name: str, body: Body) -> list[tuple[np.ndarray, float, float]]:
+    """Pinch a cup's wall from above, closing radially; either side of the cup.
 
     A mug is wider than the open gripper, so one finger goes inside. With a handle (one
     horizontal extent clearly longer) the pinch is across the handle axis, where the wall
-    faces the fingers squarely; a round bowl is pinched toward the gripper.
+    faces the fingers squarely; a round bowl is pinched on the side toward the gripper.
     """
     cup = footprint_centre(name, body)
     ext = (body.local_hi - body.local_lo)[:2]
     ex, ey = _axes(body)
     if abs(ext[0] - ext[1]) > 0.15 * min(ext):
         radial = ey if ext[0] > ext[1] else ex  # perpendicular to the handle axis
-        radius = min(ext) / 2
     else:
         radial = s.eef_pos[:2] - cup
         radial = radial / (np.linalg.norm(radial) + 1e-9)
-        radius = min(ext) / 2
-    if np.dot(s.eef_pos[:2] - cup, radial) < 0:
-        radial = -radial
-    xy = cup + radial * (radius - WALL)
-    point = np.array([*xy, body.hi[2] - min(0.02, 0.5 * body.size[2])])
-    return point, float(np.arctan2(radial[1], radial[0]))
+    radius = min(ext) / 2
+    z = max(body.hi[2] - min(0.02, 0.5 * body.size[2]), _min_grasp_z(s))
+    out = []
+    for side in (radial, -radial):
+        xy = cup + side * (radius - WALL)
+        near = 0.01 * np.linalg.norm(xy - s.eef_pos[:2])  # tie-break: the nearer side
+        out.append((np.array([*xy, z]), float(np.arctan2(side[1], side[0])), near))
+    return out
 
 
 def pick(s: SceneState, name: str, knobs: Knobs) -> Step:
@@ -147,31 +199,38 @@ def pick(s: SceneState, name: str, knobs: Knobs) -> Step:
     yaw_err = _wrap(yaw - _finger_yaw(s))
     err = point - s.eef_pos
     xy_err = float(np.linalg.norm(err[:2]))
+    # A pinched cup wall is only a few millimetres thick, as thin as an empty grip: for rim
+    # grasps only a fully shut gripper counts as a miss (the Grasped fact follows shortly).
+    empty = RIM_EMPTY_WIDTH if _is_rim(name) else EMPTY_WIDTH
     if xy_err < XY_TOL and abs(err[2]) < Z_TOL:  # at the grasp point
-        if s.gripper_width < EMPTY_WIDTH:  # closed on nothing: back off (re-opens above)
+        if s.gripper_width < empty:  # closed on nothing: back off (re-opens above)
             return Step(move(s.eef_pos, s.eef_pos + [0, 0, 0.03], OPEN))
         return Step(hold(CLOSE))
     if s.gripper_width < OPEN_WIDTH:
         # Still closing near the grasp point: keep closing; anywhere else: open first, rising
         # so that a re-opening hand does not drag the object.
-        if xy_err < 2 * XY_TOL and abs(err[2]) < 2 * Z_TOL and s.gripper_width > EMPTY_WIDTH:
+        if xy_err < 2 * XY_TOL and abs(err[2]) < 2 * Z_TOL and s.gripper_width > empty:
             return Step(hold(CLOSE))
         return Step(move(s.eef_pos, s.eef_pos + [0, 0, 0.01], OPEN))
-    hover = np.array([point[0], point[1], max(point[2] + HOVER, body.hi[2] + 0.05)])
-    if xy_err > 0.015 or abs(yaw_err) > YAW_TOL:
-        # Not lined up: line up at hover height (rising first if low, to clear the object).
-        if s.eef_pos[2] < hover[2] - 0.03 and xy_err > 0.03:
-            return Step(move(s.eef_pos, np.array([*s.eef_pos[:2], hover[2]]), OPEN, yaw_err))
-        if s.eef_pos[2] < body.hi[2] + 0.02 and xy_err > 0.015:
-            # Low beside the object (e.g. after a miss): re-centre from above, not sideways.
-            return Step(move(s.eef_pos, np.array([*s.eef_pos[:2], body.hi[2] + 0.04]), OPEN, yaw_err))
-        return Step(move(s.eef_pos, hover, OPEN, yaw_err))
-    return Step(move(s.eef_pos, point, OPEN, yaw_err))  # lined up: descend, still correcting
+    # Hover above the grasp, high enough that the fingertips pass over whatever lies between.
+    over = _path_top(s, s.eef_pos[:2], point[:2], name, FINGER_SPAN[1]) + FINGERTIP_BELOW + 0.02
+    hover = np.array([point[0], point[1], max(point[2] + HOVER, body.hi[2] + 0.05, over)])
+    # Descend once lined up; once on the way down (below hover) tolerate a little more drift,
+    # which the descent corrects, instead of bouncing back up.
+    descending = s.eef_pos[2] < hover[2] - 0.02 and xy_err < 0.025 and abs(yaw_err) < 2 * YAW_TOL
+    if (xy_err < 0.015 and abs(yaw_err) < YAW_TOL) or descending:
+        return Step(move(s.eef_pos, point, OPEN, yaw_err))
+    # Not lined up: line up at hover height (rising first if low, to clear the object).
+    if s.eef_pos[2] < hover[2] - 0.03 and xy_err > 0.03:
+        return Step(move(s.eef_pos, np.array([*s.eef_pos[:2], hover[2]]), OPEN, yaw_err))
+    return Step(move(s.eef_pos, hover, OPEN, yaw_err))
 
 
 def _lift(s: SceneState, body: Body) -> Step:
     lift = s.table_z + LIFT  # absolute: the grasp point rises with the object
-    if body.lo[2] > s.table_z + 0.06 and s.eef_pos[2] > lift - 0.04:
+    # Done once clearly off the table (placing raises it further as the path needs); the full
+    # lift height is not always reachable, e.g. close to the robot's base.
+    if body.lo[2] > s.table_z + 0.08 or (body.lo[2] > s.table_z + 0.06 and s.eef_pos[2] > lift - 0.04):
         return Step(hold(CLOSE), done=True)
     return Step(move(s.eef_pos, np.array([*s.eef_pos[:2], lift]), CLOSE))
 
@@ -180,7 +239,7 @@ def place_point(s: SceneState, obj: str, target: str) -> tuple[np.ndarray, float
     """(x, y) to release over, and the height the carried object's bottom should reach."""
     if target in s.bodies:  # On(x, plate_1): rest on top of another object
         t = s.bodies[target]
-        return np.array([*footprint_centre(target, t), 0.0]), t.hi[2] + 0.01
+        return np.array([*t.pos[:2], 0.0]), t.hi[2] + 0.01
     site = s.sites[target]
     half = np.abs(site.xmat) @ site.size  # world-frame half extents of the region box
     floor = max(site.pos[2] - half[2], s.table_z)  # table regions may sit below the top
@@ -207,25 +266,77 @@ def place(s: SceneState, obj: str, target: str, knobs: Knobs) -> Step:
         if s.eef_pos[2] < clear:
             return Step(move(s.eef_pos, np.array([*s.eef_pos[:2], clear + 0.02]), OPEN))
         return Step(hold(OPEN), done=True)
-    # Steer the object's centre (not the hand) over the target: a rim-held mug hangs
-    # several centimetres off the hand and would otherwise land on the target's edge.
-    goal_xy = xy[:2] + s.eef_pos[:2] - footprint_centre(obj, body)
+    # Steer the object's origin (not the hand) over the target: LIBERO's In/On test the
+    # origin (On: within 3 cm of the support's origin), and a rim-held mug hangs several
+    # centimetres off the hand.
     below = s.eef_pos[2] - body.lo[2]  # how far the object hangs below the gripper centre
     release_z = bottom + below + knobs.release_early
-    carry_z = max(release_z, _highest_between(s, obj) + below + CARRY * 0.5)
-    dist = np.linalg.norm(goal_xy - s.eef_pos[:2])
+    goal, yaw = _release_pose(s, obj, target, xy[:2], release_z)
+    off = goal - body.pos[:2]
+    goal_xy = s.eef_pos[:2] + off
+    yaw_err = _wrap(yaw - _finger_yaw(s))
+    # Carry the object's bottom, and the hand, over everything on the way (the target's own
+    # rim included).
+    reach = float(np.max(body.size[:2])) / 2 + 0.02
+    carry_z = max(release_z, _path_top(s, s.eef_pos[:2], goal_xy, obj, reach) + below + 0.04,
+                  _path_top(s, s.eef_pos[:2], goal_xy, obj, HAND_HALF[0]) - HAND_ABOVE + 0.01)
+    dist = np.linalg.norm(off)
     if dist > 0.04:  # far: rise to carrying height, then travel
         if s.eef_pos[2] < carry_z - 0.03:
-            return Step(move(s.eef_pos, np.array([*s.eef_pos[:2], carry_z]), CLOSE))
-        return Step(move(s.eef_pos, np.array([*goal_xy, carry_z]), CLOSE))
-    if dist > 0.015 and s.eef_pos[2] > release_z + 0.05:  # close: centre before going down
-        return Step(move(s.eef_pos, np.array([*goal_xy, s.eef_pos[2]]), CLOSE))
-    if s.eef_pos[2] - release_z > Z_TOL and not (knobs.release_early == 0 and _placed(s, obj, target)):
-        return Step(move(s.eef_pos, np.array([*goal_xy, release_z]), CLOSE))  # descend, correcting
+            return Step(move(s.eef_pos, np.array([*s.eef_pos[:2], carry_z]), CLOSE, yaw_err))
+        return Step(move(s.eef_pos, np.array([*goal_xy, carry_z]), CLOSE, yaw_err))
+    if (dist > 0.015 or abs(yaw_err) > YAW_TOL) and s.eef_pos[2] > release_z + 0.05:
+        return Step(move(s.eef_pos, np.array([*goal_xy, s.eef_pos[2]]), CLOSE, yaw_err))  # centre first
+    if _placed(s, obj, target) and knobs.release_early == 0:
+        return Step(hold(OPEN))  # already counts as placed (e.g. resting on the rim): let go
+    # On(x, support) needs the origins within 3 cm; a region or container is more forgiving.
+    xy_tol = RELEASE_XY_TOL if target in s.bodies else 2 * RELEASE_XY_TOL
+    if s.eef_pos[2] - release_z > Z_TOL or dist > xy_tol:
+        # Descend, correcting; low but off-centre (a swinging load): settle first.
+        return Step(move(s.eef_pos, np.array([*goal_xy, release_z]), CLOSE, yaw_err))
     return Step(hold(OPEN))
 
 
-def _highest_between(s: SceneState, carried: str) -> float:
-    """Top of the tallest other object: a carried object passes above all of them."""
-    tops = [b.hi[2] for n, b in s.bodies.items() if n != carried and b.hi[2] < s.table_z + 0.4]
-    return max(tops, default=s.table_z)
+def _release_pose(s: SceneState, obj: str, target: str, xy: np.ndarray, release_z: float) -> tuple[np.ndarray, float]:
+    """Where the object's origin goes and the finger yaw to hold, so the hand clears neighbours.
+
+    Candidates: the current yaw or a world-aligned one (the held object turns with the hand),
+    and, for a free table region, spots within it. The least intrusion of the open hand at
+    the release point wins. Turning costs enough that only a real obstruction justifies it:
+    large wrist turns on top of the grasp's own turn can run the last joint into its limit,
+    where the arm stalls.
+    """
+    body = s.bodies[obj]
+    now = _finger_yaw(s)
+    hang = body.pos[:2] - s.eef_pos[:2]  # the object's origin relative to the hand
+    spots = [(xy, 0.0)]
+    if target in s.sites and not target.endswith("contain_region"):
+        site = s.sites[target]
+        half = (np.abs(site.xmat) @ site.size)[:2] - 0.02
+        spots += [(xy + np.array([dx, dy]) * np.maximum(half, 0.0), 0.02)
+                  for dx in (-1, 0, 1) for dy in (-1, 0, 1) if dx or dy]
+    best, best_cost = (xy, now), np.inf
+    for yaw in (now, 0.0, np.pi / 2, np.pi / 4, -np.pi / 4):
+        turn = _wrap(yaw - now)
+        c, si = np.cos(turn), np.sin(turn)
+        turned = np.array([c * hang[0] - si * hang[1], si * hang[0] + c * hang[1]])
+        for spot, cost in spots:
+            eef = np.array([*(spot - turned), release_z])
+            total = cost + TURN_COST * abs(turn) + _intrusion(s, eef, yaw, obj)
+            if total < best_cost:
+                best, best_cost = (spot, yaw), total
+    return best
+
+
+def _path_top(s: SceneState, start: np.ndarray, end: np.ndarray, own: str, reach: float) -> float:
+    """Top of the tallest other object within ``reach`` of the straight path start -> end."""
+    ts = np.linspace(0.0, 1.0, 12)[:, None]
+    path = start[None] + ts * (end - start)[None]
+    top = s.table_z
+    for n, b in s.bodies.items():
+        if n == own or b.lo[2] > s.table_z + 0.3:  # shelves and wall fixtures are out of reach
+            continue
+        inside = np.all((path >= b.lo[:2] - reach) & (path <= b.hi[:2] + reach), axis=1)
+        if inside.any():
+            top = max(top, b.hi[2])
+    return top
