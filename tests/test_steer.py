@@ -1,0 +1,101 @@
+import asyncio
+
+import pytest
+
+from seal.errors import InvalidInput
+from seal.policies.expert.policy import FailureKnobs
+from seal.sim.pool import EnvPool
+from seal.sim.suites import get_task
+from seal.sim.world import LiberoWorld, PhysicsMismatch
+from seal.steer.engine import Steerer, SteerConfig
+from seal.steer.run import expert_policy
+from seal.steer.trace import Trace, read_trace
+from seal.verify.base import Verdict
+from seal.verify.oracle import OracleVerifier
+
+BOOK = get_task("libero_10", 5)  # two sub-plans, ~90 steps: the quickest LIBERO-10 task
+
+
+class SlowOracle(OracleVerifier):
+    """The oracle answering after a fixed delay, like a VLM call."""
+
+    def __init__(self, delay: float):
+        self.delay = delay
+
+    async def verify(self, request) -> Verdict:
+        await asyncio.sleep(self.delay)
+        return await super().verify(request)
+
+
+@pytest.fixture(scope="module")
+def pool():
+    with EnvPool(BOOK, k=4, workers=2) as p:
+        yield p
+
+
+def _steer(pool, config, verifier, knobs, tmp_path, **kw):
+    with Trace(tmp_path / "trace.jsonl") as trace:
+        result = Steerer(pool, expert_policy(BOOK, knobs, seed=config.seed), verifier, config, trace=trace,
+                         **kw).run(0)
+    return result, read_trace(tmp_path / "trace.jsonl")
+
+
+def test_seal_episode_commits_verified_winners(pool, tmp_path):
+    result, trace = _steer(pool, SteerConfig(method="seal", k=4), OracleVerifier(), FailureKnobs.misaligned(), tmp_path)
+    assert result.success and not result.sim_error
+    events = [e["event"] for e in trace]
+    assert events[0] == "subplan" and events[-1] == "episode_end" and events.count("commit") >= 2
+    commits = [e for e in trace if e["event"] == "commit"]
+    assert all(c["verdict"]["success"] for c in commits)  # nothing unverified was executed
+    assert commits[-1]["steps"] == result.steps == len(result.executed_actions)
+    cands = [e for e in trace if e["event"] == "candidate"]
+    assert {c["ended_by"] for c in cands} <= {"think", "budget", "step_limit", "task_success", "stopped", "error"}
+    assert result.verifier_calls >= 2
+
+
+def test_base_method_runs_one_unverified_candidate(pool, tmp_path):
+    result, trace = _steer(pool, SteerConfig(method="base", k=4), None, FailureKnobs(), tmp_path)
+    assert result.success and result.verifier_calls == 0
+    assert {e["slot"] for e in trace if e["event"] == "candidate"} == {0}
+
+
+def test_background_verification_overlaps_sampling_and_exits_early(pool, tmp_path):
+    config = SteerConfig(method="seal", k=4, seed=1, max_steps=60)  # the pick sub-plan only
+    result, trace = _steer(pool, config, SlowOracle(2.0), FailureKnobs.misaligned(), tmp_path)
+    first_round = [e for e in trace if e["event"] == "candidate" and e["round"] == 0][:4]
+    verified = [c for c in first_round if c["verdict"] is not None]
+    assert verified
+    first = min(verified, key=lambda c: c["t_end"])
+    # sampling of the other candidates went on while the first verification was in flight
+    assert any(c["steps"] > first["steps"] for c in first_round)
+    # early exit: the round's verification wall time is well under K sequential calls
+    span = max(c["t_verified"] for c in verified) - first["t_end"]
+    assert span < 3 * 2.0
+
+
+def test_replay_mode_measures_model_mismatch(tmp_path):
+    exact, _ = _replay(tmp_path / "exact", None)
+    assert exact.divergence and max(exact.divergence) == 0.0  # a perfect world model
+    off, _ = _replay(tmp_path / "off", PhysicsMismatch(friction=0.5, mass=1.5, damping=2.0))
+    assert max(off.divergence) > 1e-4
+
+
+def _replay(tmp_path, mismatch):
+    world = LiberoWorld(BOOK)
+    try:
+        with EnvPool(BOOK, k=2, workers=1, physics=mismatch) as pool:
+            config = SteerConfig(method="seal", k=2, mode="replay", max_steps=60)
+            return _steer(pool, config, OracleVerifier(), FailureKnobs(), tmp_path, eval_world=world)
+    finally:
+        world.close()
+
+
+def test_bad_steering_config():
+    with pytest.raises(InvalidInput, match="valid: base, random, seal"):
+        SteerConfig(method="vgps")
+    with pytest.raises(InvalidInput, match="valid: sync, replay"):
+        SteerConfig(mode="dream")
+    with pytest.raises(InvalidInput, match="k >= 1"):
+        SteerConfig(k=0)
+    with pytest.raises(InvalidInput, match="in \\[0.1, 10\\]"):
+        PhysicsMismatch(friction=0.0)
