@@ -39,6 +39,25 @@ def _cmd_run(args) -> int:
     return 0
 
 
+def _cmd_ground(args) -> int:
+    from seal.policies.expert.plan import plan_task
+    from seal.sim.suites import get_task
+    from seal.sim.world import LiberoWorld
+    from seal.verify.oracle import ground
+
+    spec = get_task(args.suite, args.task)
+    world = LiberoWorld(spec)  # the scene's exact object and region names
+    names = world.objects
+    world.close()
+    plans = tuple(args.plan) if args.plan else tuple(p.text for p in plan_task(spec))
+    index = len(args.plan) if args.plan else (plans.index(args.text) if args.text in plans else None)
+    g = ground(args.text, plans, names, index)
+    print(json.dumps({"task": spec.key, "text": args.text,
+                      "atoms": [str(a) for a in g.atoms] if g.atoms else "unknown",
+                      **({"reason": g.reason} if not g.atoms else {})}))
+    return 0
+
+
 def _cmd_demos(args) -> int:
     from rich.progress import Progress
 
@@ -96,6 +115,14 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--out", default="runs/demo")
     run.set_defaults(func=_cmd_run)
 
+    gr = sub.add_parser("ground", help="the goal atoms the oracle verifier checks for a sub-plan text")
+    gr.add_argument("text", help='e.g. "place it in the basket"')
+    gr.add_argument("--suite", default="libero_10")
+    gr.add_argument("--task", type=int, default=0)
+    gr.add_argument("--plan", nargs="*", default=None,
+                    help="earlier sub-plans, so 'it' can be resolved (default: the expert's plan)")
+    gr.set_defaults(func=_cmd_ground)
+
     demos = sub.add_parser("demos", help="scripted-expert demonstrations as a LeRobot dataset")
     demos_sub = demos.add_subparsers(dest="demos_command", required=True)
     rec = demos_sub.add_parser("record", help="record successful expert episodes (resumable)")
@@ -107,9 +134,11 @@ def build_parser() -> argparse.ArgumentParser:
     rec.set_defaults(func=_cmd_demos)
 
     bench = sub.add_parser("bench", help="benchmarks; each prints one JSON object")
-    bench.add_argument("what", choices=["sim", "expert"])
-    bench.add_argument("--tasks", default="", help="expert: comma-separated task ids (default: all)")
-    bench.add_argument("--trials", type=int, default=50, help="expert: init states per task")
+    bench.add_argument("what", choices=["sim", "expert", "steer", "runtime"])
+    bench.add_argument("--ks", default="", help="runtime: comma-separated K values (default 1,2,4,8,10)")
+    bench.add_argument("--latency", type=float, default=2.0, help="runtime: fixed verifier latency in seconds")
+    bench.add_argument("--tasks", default="", help="comma-separated task ids (expert: all; steer: 0,1,7; runtime: 5)")
+    bench.add_argument("--trials", type=int, default=50, help="expert/steer/runtime: trials (init states) per task")
     bench.add_argument("--no-misaligned", action="store_true", help="expert: skip the misaligned setting")
     bench.add_argument("--suite", default="libero_10")
     bench.add_argument("--task", type=int, default=0)

@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import importlib
 
-BENCHMARKS = {"sim": "seal.benchmarks.sim", "expert": "seal.benchmarks.expert"}
+BENCHMARKS = {"sim": "seal.benchmarks.sim:run", "expert": "seal.benchmarks.expert:run",
+              "steer": "seal.benchmarks.steer:run_steer", "runtime": "seal.benchmarks.steer:run_runtime"}
 
 
 def run_benchmark(name: str, args) -> dict:
@@ -16,4 +17,5 @@ def run_benchmark(name: str, args) -> dict:
         from seal.errors import InvalidInput
 
         raise InvalidInput(f"unknown benchmark {name!r}; valid: {', '.join(BENCHMARKS)}")
-    return importlib.import_module(BENCHMARKS[name]).run(args)
+    module, func = BENCHMARKS[name].split(":")
+    return getattr(importlib.import_module(module), func)(args)
