@@ -14,7 +14,7 @@ $(BIN)/seal: pyproject.toml
 install: $(BIN)/seal
 
 run: install
-	$(BIN)/seal run --suite libero_10 --task 0 --out runs/demo
+	$(BIN)/seal run --suite libero_10 --task 0 --method seal --k 10 --verifier oracle --out runs/demo
 
 test: install
 	$(BIN)/python -m pytest -q
