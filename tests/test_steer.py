@@ -91,11 +91,39 @@ def _replay(tmp_path, mismatch):
 
 
 def test_bad_steering_config():
-    with pytest.raises(InvalidInput, match="valid: base, random, seal"):
+    with pytest.raises(InvalidInput, match="valid: base, random, value, seal"):
         SteerConfig(method="vgps")
+    with pytest.raises(InvalidInput, match="valid: task, subplan"):
+        SteerConfig(value_goal="scene")
     with pytest.raises(InvalidInput, match="valid: sync, replay"):
         SteerConfig(mode="dream")
     with pytest.raises(InvalidInput, match="k >= 1"):
         SteerConfig(k=0)
     with pytest.raises(InvalidInput, match="in \\[0.1, 10\\]"):
         PhysicsMismatch(friction=0.0)
+
+
+class PreferLowGripperScorer:
+    """A real (if naive) scorer: prefers chunks that close the gripper. Exercises the V-GPS path."""
+
+    needs_images = False
+
+    def __init__(self):
+        self.calls = []
+
+    def score(self, obs, chunks, goal):
+        self.calls.append((chunks.shape, goal))
+        return chunks[:, :, 6].sum(axis=1)
+
+
+def test_value_method_executes_the_best_scored_chunk_each_step(pool, tmp_path):
+    scorer = PreferLowGripperScorer()
+    config = SteerConfig(method="value", k=4, max_steps=30, value_goal="subplan")
+    with Trace(tmp_path / "t.jsonl") as trace:
+        result = Steerer(pool, expert_policy(BOOK, FailureKnobs.misaligned(), seed=2), None, config,
+                         trace=trace, scorer=scorer).run(0)
+    assert scorer.calls and all(shape[0] >= 3 and shape[1:] == (16, 7) for shape, _ in scorer.calls)
+    assert {goal for _, goal in scorer.calls} == {"pick up the book"}
+    assert result.steps == len(result.executed_actions) == 30
+    with pytest.raises(InvalidInput, match="needs a chunk scorer"):
+        Steerer(pool, expert_policy(BOOK, FailureKnobs()), None, SteerConfig(method="value", k=4))

@@ -95,7 +95,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--suite", default="libero_10")
     run.add_argument("--task", type=int, default=0)
     run.add_argument("--init", type=int, default=0, help="official init state index")
-    run.add_argument("--method", default="seal", choices=["base", "random", "seal"])
+    run.add_argument("--method", default="seal", choices=["base", "random", "value", "seal"],
+                     help="value needs a trained V-GPS scorer (not shipped yet)")
     run.add_argument("--k", type=int, default=10, help="candidates per sub-plan")
     run.add_argument("--rounds", type=int, default=2, help="sampling rounds before the fallback")
     run.add_argument("--verifier", default="oracle", help="oracle | openai | gemini")

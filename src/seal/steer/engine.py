@@ -15,7 +15,9 @@ If no candidate passes, the round is resampled (up to ``rounds`` rounds); then t
 with the best verifier score wins, and if no verifier gave a score, the first candidate.
 
 Methods share this loop: ``base`` (K=1, nothing verified: the policy alone), ``random`` (a
-random finished candidate), ``seal`` (verified, early exit).
+random finished candidate), ``value`` (V-GPS: at every chunk, K sampled chunks are ranked by a
+scorer Q(obs, chunk, goal text) and the best one is executed; the goal text is the task or the
+sub-plan), ``seal`` (verified, early exit).
 """
 
 from __future__ import annotations
@@ -34,7 +36,8 @@ from seal.steer.background import BackgroundVerifier
 from seal.steer.trace import Trace
 from seal.verify.base import Verdict, VerifyRequest
 
-METHODS = ("base", "random", "seal")
+METHODS = ("base", "random", "value", "seal")
+VALUE_GOALS = ("task", "subplan")
 MODES = ("sync", "replay")
 
 
@@ -47,10 +50,13 @@ class SteerConfig:
     mode: str = "sync"
     max_steps: int | None = None  # default: the suite's limit (520 for LIBERO-10)
     seed: int = 0
+    value_goal: str = "task"  # value method: what the scorer is conditioned on (V-GPS uses the task)
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
             raise InvalidInput(f"unknown method {self.method!r}; valid: {', '.join(METHODS)}")
+        if self.value_goal not in VALUE_GOALS:
+            raise InvalidInput(f"unknown value goal {self.value_goal!r}; valid: {', '.join(VALUE_GOALS)}")
         if self.mode not in MODES:
             raise InvalidInput(f"unknown mode {self.mode!r}; valid: {', '.join(MODES)}")
         if self.k < 1 or self.rounds < 1 or self.subplan_budget < ACTION_HORIZON:
@@ -106,9 +112,12 @@ class Steerer:
     """Runs steered episodes of one task on an `EnvPool` of at least K slots."""
 
     def __init__(self, pool, policy, verifier, config: SteerConfig, *, eval_world=None, trace: Trace | None = None,
-                 grid_dir=None):
+                 grid_dir=None, scorer=None):
         if config.method == "seal" and verifier is None:
             raise InvalidInput("method 'seal' needs a verifier (e.g. --verifier oracle)")
+        if config.method == "value" and scorer is None:
+            raise InvalidInput("method 'value' needs a chunk scorer (a trained V-GPS Q-function)")
+        self.scorer = scorer
         if pool.k < config.effective_k:
             raise InvalidInput(f"the pool has {pool.k} slots but method {config.method!r} needs k={config.effective_k}")
         if config.mode == "replay" and eval_world is None:
@@ -174,6 +183,8 @@ class Steerer:
     # ---- one sub-plan: rounds of K candidates --------------------------------------------------
     def _steer_subplan(self, committed, obs0, reasoning, max_steps, background, result) -> Candidate | None:
         cfg = self.config
+        if cfg.method == "value":
+            return self._value_subplan(committed, obs0, reasoning, max_steps, result)
         rounds = 1 if cfg.method in ("base", "random") else cfg.rounds
         tried: list[Candidate] = []
         for r in range(rounds):
@@ -190,6 +201,48 @@ class Steerer:
             return usable[int(self._rng.integers(len(usable)))]
         scored = [c for c in usable if c.verdict is not None and c.verdict.score is not None]
         return max(scored, key=lambda c: c.verdict.score) if scored else usable[0]
+
+    def _value_subplan(self, committed, obs0, reasoning, max_steps, result) -> Candidate | None:
+        """V-GPS: sample K chunks from one state, execute the one the scorer rates best, repeat."""
+        cfg, k = self.config, self.config.k
+        goal = self.pool.task.instruction if cfg.value_goal == "task" else reasoning.now
+        self.pool.sync(committed)
+        self.policy.begin(k)
+        c = Candidate(round=0, slot=0, snapshot=committed, t_start=time.perf_counter())
+        obs = obs0
+        while True:
+            t0 = time.perf_counter()
+            chunks = self.policy.act([obs] * k, reasoning, rows=list(range(k)))
+            acting = [i for i, ch in enumerate(chunks) if not ch.think]
+            end = ("think" if len(acting) <= k // 2 else "budget" if c.steps >= cfg.subplan_budget
+                   else "step_limit" if committed.steps + c.steps >= max_steps else "")
+            if end:  # most samples say the sub-plan is done: the policy would think now
+                c.ended_by, c.t_end = end, time.perf_counter()
+                break
+            scores = np.asarray(self.scorer.score(obs, np.stack([chunks[i].actions for i in acting]), goal))
+            best = acting[int(np.argmax(scores))]
+            result.timing["sampling_s"] += time.perf_counter() - t0
+            t0 = time.perf_counter()
+            chunk = np.clip(chunks[best].actions[:ACTION_HORIZON], -1.0, 1.0)
+            res = self.pool.step({0: chunk}, observe=True, images=self._needs_images or self.scorer_needs_images,
+                                 privileged_atoms=self._atoms, stop_on_success=True)[0]
+            result.timing["predict_s"] += time.perf_counter() - t0
+            if not res.ok:
+                c.error, c.ended_by = res.error or "sim_error", "error"
+                return None
+            c.actions.append(chunk[: res.steps])
+            c.steps += res.steps
+            c.snapshot, obs = res.snapshot, res.observation
+            if res.success:
+                c.ended_by, c.t_end = "task_success", time.perf_counter()
+                break
+        self._emit("candidate", round=0, slot=0, steps=c.steps, ended_by=c.ended_by, error=c.error,
+                   snapshot=c.snapshot.id, verdict=None, t_start=c.t_start, t_end=c.t_end, t_verified=0.0)
+        return c
+
+    @property
+    def scorer_needs_images(self) -> bool:
+        return bool(getattr(self.scorer, "needs_images", True))
 
     def _round(self, r, committed, obs0, reasoning, max_steps, background, result):
         cfg, pool = self.config, self.pool

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from seal.policies.expert.skills import CLOSE, OPEN, OPEN_WIDTH, POS_GAIN, YAW_GAIN, Step, _finger_yaw, _wrap
+from seal.policies.expert.skills import CLOSE, OPEN, OPEN_WIDTH, POS_GAIN, YAW_GAIN, Step, _finger_yaw
 from seal.sim.goals import GoalAtom
 from seal.sim.scene import Articulation, Box, SceneState
 
@@ -137,15 +137,46 @@ def _act(s: SceneState, goal: np.ndarray, gripper: float, finger_dir: np.ndarray
 
 
 def _yaw_err(s: SceneState, finger_dir: np.ndarray, signed: bool = False) -> float:
-    """Yaw turning the finger axis onto ``finger_dir``: the shorter way for a symmetric
-    grasp, or (``signed``) onto that exact direction, pad to pad."""
-    err = np.arctan2(finger_dir[1], finger_dir[0]) - _finger_yaw(s)
-    return _wrap_turn(err) if signed else _wrap(err)
+    """Yaw that turns the finger axis onto ``finger_dir`` (``signed``: pad to pad exactly;
+    else either way round, whichever keeps the wrist nearer the middle of its range).
+
+    Angles are measured from WRIST_MID_YAW and never wrap through the opposite direction,
+    where the wrist's last joint hits its stops: the wrist may turn the long way round
+    rather than into a stop."""
+    now = _wrist(_finger_yaw(s))
+    target = _wrist(_yaw_of(finger_dir if signed else _wrist_side(s, finger_dir)))
+    return target - now
 
 
-def _wrap_turn(angle: float) -> float:
-    """Into [-pi, pi)."""
-    return (angle + np.pi) % (2 * np.pi) - np.pi
+def _wrist_side(s: SceneState, finger_dir: np.ndarray, then: float = 0.0) -> np.ndarray:
+    """Of ``finger_dir`` and its opposite (the same grip for a symmetric gripper), the one
+    that leaves the wrist nearest the middle of its range after a further ``then`` radians
+    of yaw; ties go to the nearer one, so the choice does not flip back and forth."""
+    now = _wrist(_finger_yaw(s))
+
+    def cost(d: np.ndarray) -> float:
+        t = _wrist(_yaw_of(d))
+        return abs(t + then) + 0.5 * abs(t - now)
+
+    return min((finger_dir, -finger_dir), key=cost)
+
+
+def _misalign(s: SceneState, finger_dir: np.ndarray) -> float:
+    """Angle between the finger axis and ``finger_dir``, either way round (0..pi/2)."""
+    d = (_yaw_of(finger_dir) - _finger_yaw(s)) % np.pi
+    return float(min(d, np.pi - d))
+
+
+WRIST_MID_YAW = 2.6  # finger-axis yaw with the wrist's last joint mid-range (measured: q7 = 0)
+
+
+def _wrist(yaw: float) -> float:
+    """A finger-axis yaw as an offset from the wrist's mid-range, in [-pi, pi)."""
+    return (yaw - WRIST_MID_YAW + np.pi) % (2 * np.pi) - np.pi
+
+
+def _yaw_of(v: np.ndarray) -> float:
+    return float(np.arctan2(v[1], v[0]))
 
 
 def _still(s: SceneState, gripper: float) -> np.ndarray:
@@ -214,7 +245,7 @@ def _approach(s: SceneState, ready: np.ndarray, gripper: float, finger_dir: np.n
     ``travel_z``, across, then straight down once turned the right way. Heights are absolute
     targets, so the arm's sag during fast moves is corrected rather than accumulated."""
     err = ready - s.eef_pos
-    if np.linalg.norm(err[:2]) < 0.015 and abs(_yaw_err(s, finger_dir)) < YAW_TOL:
+    if np.linalg.norm(err[:2]) < 0.015 and _misalign(s, finger_dir) < YAW_TOL:
         return _act(s, ready, gripper, finger_dir, point)  # straight down (or up) onto it
     high = max(travel_z, ready[2] + 0.04)
     if s.eef_pos[2] < high - 0.02:
@@ -293,9 +324,25 @@ def close_door(s: SceneState, obj: str, goal: GoalAtom) -> Step:
     if pushing:
         target = d.point(reach, d.face + FINGER_HALF, z, toward_closed=lead)
         return Step(_act(s, target, CLOSE, d.turned(d.along, lead), cap=PUSH_SPEED))
+    inside = _inside(s, d, _owner(s, obj))
+    if inside > 0:  # still in the cabinet (just put something in it): straight out first
+        out = d.turned(d.push, _openness(a))  # the closed door's outward normal
+        return Step(_act(s, s.eef_pos + out * (inside + 0.05), _keep_gripper(s)))
     ready = d.point(reach, d.face + FINGER_HALF + 0.03, z)
     travel = _travel_height(s, a.part.lo, a.part.hi, d.top, skip=_owner(s, obj))
     return Step(_approach(s, ready, CLOSE, d.along, DOWN, travel))
+
+
+def _inside(s: SceneState, d: _Door, fixture: str) -> float:
+    """How deep the eef is behind the closed door's plane, within the fixture's box (0 if
+    it is not in there)."""
+    out = d.turned(d.push, _openness(d.a))
+    depth = float((d.a.anchor - s.eef_pos) @ out)
+    box = s.bodies.get(fixture)
+    if box is None or depth <= 0 or s.eef_pos[2] > box.hi[2]:
+        return 0.0
+    within = np.all(s.eef_pos[:2] > box.lo[:2]) and np.all(s.eef_pos[:2] < box.hi[:2])
+    return depth if within else 0.0
 
 
 # ---- knobs -------------------------------------------------------------------------------
@@ -338,8 +385,11 @@ def turn_knob(s: SceneState, obj: str, goal: GoalAtom, on: bool) -> Step:
                 return Step(np.array([0, 0, 0, 0, 0, 0, CLOSE], dtype=np.float64))  # no rotation: hold the goal
             return Step(_still(s, OPEN))
         return _rise(s, k.top + CLEARANCE)
-    grip = _knob_grip(s, k, twist=turn * (KNOB_ON_AT + 0.1 - _openness(k.a) if on else _openness(k.a)))
-    if near and abs(_yaw_err(s, k.across)) < 0.5 and s.gripper_width > 0.012:
+    # Hold the ridge the way round that leaves the wrist room for the whole twist: a 1.5 rad
+    # twist started from the wrong side runs the wrist into its stop.
+    twist = turn * (KNOB_ON_AT + 0.1 - _openness(k.a) if on else _openness(k.a))
+    grip = _wrist_side(s, k.across, then=twist * float(k.a.axis[2]))
+    if near and _misalign(s, k.across) < 0.5 and s.gripper_width > 0.012:
         if s.gripper_width >= 0.05:  # closing on the ridge, still centring
             return Step(_act(s, k.centre, CLOSE))
         # Holding the ridge: keep the wrist a full lead ahead of the knob until the sub-goal
@@ -359,27 +409,10 @@ def turn_knob(s: SceneState, obj: str, goal: GoalAtom, on: bool) -> Step:
 
 
 KNOB_ON_AT = 0.5  # LIBERO's stove is on from qpos 0.5
-HOME_YAW = np.pi / 2  # the finger axis (pad to pad) points along +y with the arm at rest
-
-
 def _pressed_into_stop(a: Articulation) -> bool:
     """Whether the joint sits measurably past its closed-side limit (MuJoCo's limits are soft)."""
     stop = a.range[0] if _open_sign(a) > 0 else a.range[1]
     return (stop - a.qpos) * _open_sign(a) > 0.0005
-
-
-def _knob_grip(s: SceneState, k: _Knob, twist: float) -> np.ndarray:
-    """Which way round to hold the ridge. The finger axis is signed for the wrist, whose
-    last joint turns only so far: of the two, take the one that leaves the wrist nearest
-    its rest angle after turning by ``twist`` (radians of qpos) - a 1.5 rad twist from the
-    wrong side runs the wrist into its stop."""
-    now = _finger_yaw(s)
-    twist_yaw = twist * float(k.a.axis[2])  # qpos turns about the axis; yaw about +z
-
-    def wrist_after(d: np.ndarray) -> float:
-        return abs(_wrap_turn(now - HOME_YAW) + _yaw_err(s, d, signed=True) + twist_yaw)
-
-    return min((k.across, -k.across), key=wrist_after)
 
 
 def _rise(s: SceneState, height: float) -> Step:

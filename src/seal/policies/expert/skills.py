@@ -219,11 +219,35 @@ def pick(s: SceneState, name: str, knobs: Knobs) -> Step:
     # which the descent corrects, instead of bouncing back up.
     descending = s.eef_pos[2] < hover[2] - 0.02 and xy_err < 0.025 and abs(yaw_err) < 2 * YAW_TOL
     if (xy_err < 0.015 and abs(yaw_err) < YAW_TOL) or descending:
-        return Step(move(s.eef_pos, point, OPEN, yaw_err))
+        return Step(move(s.eef_pos, _descent_goal(s, name, body, point, yaw), OPEN, yaw_err))
     # Not lined up: line up at hover height (rising first if low, to clear the object).
     if s.eef_pos[2] < hover[2] - 0.03 and xy_err > 0.03:
         return Step(move(s.eef_pos, np.array([*s.eef_pos[:2], hover[2]]), OPEN, yaw_err))
     return Step(move(s.eef_pos, hover, OPEN, yaw_err))
+
+
+def _descent_goal(s: SceneState, name: str, body: Body, point: np.ndarray, yaw: float) -> np.ndarray:
+    """The grasp point, or a point just above the object until the hand is centred on it.
+
+    The open fingers leave only millimetres of slack around a can: a finger that passes the
+    top while still off-centre along the finger axis lands on the object and tips it over.
+    So the fingertips stay above the object's top until the along-axis error fits the slack.
+    """
+    err = point[:2] - s.eef_pos[:2]
+    axis = np.array([np.cos(yaw), np.sin(yaw)])
+    along, across = abs(err @ axis), abs(err @ np.array([-axis[1], axis[0]]))
+    if along < _along_tolerance(name, body, yaw) and across < XY_TOL:
+        return point
+    return np.array([*point[:2], max(point[2], body.hi[2] + FINGERTIP_BELOW + 0.01)])
+
+
+def _along_tolerance(name: str, body: Body, yaw: float) -> float:
+    """How far off-centre along the finger axis the fingers may pass the object's top."""
+    if _is_rim(name):
+        return 0.012  # one finger goes inside the cup: centimetres of room
+    ext = body.local_hi - body.local_lo
+    across = ext[0] if abs(_wrap(yaw - body.yaw)) < np.pi / 4 else ext[1]  # width between the pads
+    return float(np.clip(0.6 * (PAD_GAP - across) / 2, 0.003, XY_TOL))
 
 
 def _lift(s: SceneState, body: Body) -> Step:
