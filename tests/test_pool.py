@@ -45,15 +45,16 @@ def test_killed_worker_is_respawned_and_only_its_slots_fail(pool):
     start = pool.reset(0)
     victim = 1  # owns slots 1 and 3
     pid = pool.worker_pids()[victim]
-    long_chunks = [np.zeros((40, 7))] * 4
-    threading.Timer(1.0, os.kill, (pid, signal.SIGKILL)).start()
+    # ~300 steps per worker (several seconds): the kill lands mid-command on any machine
+    long_chunks = [np.zeros((150, 7))] * 4
+    threading.Timer(0.5, os.kill, (pid, signal.SIGKILL)).start()
     results = pool.step(long_chunks)
     failed = {r.slot for r in results if not r.ok}
     assert failed == set(pool.slots_of(victim)) == {1, 3}
     assert all("died" in r.error for r in results if r.slot in failed)
     assert pool.worker_pids()[victim] != pid and pool.crashes >= 1
     # the survivors moved on; the victim's slots are back at their last snapshot and usable
-    assert pool.snapshot(0).steps == 40 and pool.snapshot(1) == pool.snapshot(3) == start
+    assert pool.snapshot(0).steps == 150 and pool.snapshot(1) == pool.snapshot(3) == start
     again = pool.step({1: CHUNKS[1], 3: CHUNKS[1]})
     assert all(r.ok and r.snapshot.steps == 5 for r in again) and again[0].snapshot == again[1].snapshot
 
@@ -67,3 +68,13 @@ def test_pool_bad_input(pool):
         pool.reset(99)
     with pytest.raises(InvalidInput, match="workers must be in 1..2"):
         EnvPool(("libero_10", 0), k=2, workers=3)
+
+
+def test_worker_killed_between_commands_is_noticed_on_the_next_one(pool):
+    start = pool.reset(0)
+    pid = pool.worker_pids()[0]  # owns slots 0 and 2
+    os.kill(pid, signal.SIGKILL)
+    results = pool.step(CHUNKS)
+    assert {r.slot for r in results if not r.ok} == {0, 2}
+    assert pool.worker_pids()[0] != pid
+    assert pool.snapshot(0) == start and all(r.ok for r in pool.step(CHUNKS))
