@@ -20,6 +20,7 @@ from seal.sim.scene import Body, SceneState
 
 POS_GAIN = 20.0  # action per metre of position error (saturates at 5 cm)
 YAW_GAIN = 2.0  # action per radian of yaw error
+CARRY_GAIN = 10.0  # horizontal action per metre while carrying (saturates at 10 cm)
 OPEN, CLOSE = -1.0, 1.0
 HOVER = 0.10  # clearance above an object before descending onto it
 LIFT = 0.22  # height above the table a picked object is raised to
@@ -43,6 +44,8 @@ PAD_GAP = 0.076  # free space between the open pads
 TURN_COST = 1.0  # placing: penalty per radian of wrist turn, against hand-overlap penalties
 # Objects picked by their rim (one finger inside, one outside the wall) rather than across.
 RIM_GRASP = ("mug", "bowl")
+# Upright cans: round, so grasped across from any side; the wrist need not turn at all.
+ROUND = ("alphabet_soup", "tomato_sauce")
 # A mug's bounding box includes its handle; the cup itself is shifted away from the handle.
 # Offset (local frame, metres) from the box centre to the cup axis, measured from the
 # collision geoms. Unknown mugs fall back to the box centre (the rim grasp tolerates ~2 cm).
@@ -69,6 +72,14 @@ def move(eef: np.ndarray, goal: np.ndarray, gripper: float, yaw_err: float = 0.0
     return np.array([*delta, 0.0, 0.0, np.clip(YAW_GAIN * yaw_err, -1, 1), gripper])
 
 
+def carry(eef: np.ndarray, goal: np.ndarray, yaw_err: float = 0.0) -> np.ndarray:
+    """`move` holding an object, braking from further out: a loaded arm coasts on for a
+    centimetre or two after a hard stop, enough to knock a load against a compartment wall."""
+    action = move(eef, goal, CLOSE, yaw_err)
+    action[:2] = np.clip(CARRY_GAIN * (goal - eef)[:2], -1.0, 1.0)
+    return action
+
+
 def hold(gripper: float) -> np.ndarray:
     return np.array([0, 0, 0, 0, 0, 0, gripper], dtype=np.float64)
 
@@ -76,6 +87,31 @@ def hold(gripper: float) -> np.ndarray:
 def _wrap(angle: float) -> float:
     """Into [-pi/2, pi/2): a parallel gripper is symmetric under a half turn."""
     return (angle + np.pi / 2) % np.pi - np.pi / 2
+
+
+# The wrist's last joint turns the finger axis about 1:1 and stops at +-2.9 rad; its middle
+# is at a finger yaw of ~2.4 (measured: q7 = 0), the home pose at ~pi/2 (q7 = pi/4). Near
+# the table the wrist's other joints drift along with it, so big turns run into the stops
+# and the arm stalls. Finger yaws are therefore kept within a quarter turn (plus a margin)
+# of home, and never wrapped through the far side where the stops are.
+HOME_YAW = np.pi / 2
+WRIST_MID_YAW = 2.4
+YAW_WINDOW = np.pi / 2 + 0.25
+
+
+def _wrist_yaw(s: SceneState) -> float:
+    """The finger yaw unwrapped around the wrist's mid-range (continuous over its travel)."""
+    return (_finger_yaw(s) - WRIST_MID_YAW + np.pi) % (2 * np.pi) - np.pi + WRIST_MID_YAW
+
+
+def _yaw_error(s: SceneState, yaw: float) -> float:
+    """Signed turn onto ``yaw`` or its half-turn twin: of the twins within the window around
+    home, the one nearer the current yaw (so the choice does not flip near the window's edge).
+    """
+    now = _wrist_yaw(s)
+    base = HOME_YAW + _wrap(yaw - HOME_YAW)
+    twins = [t for t in (base - np.pi, base, base + np.pi) if abs(t - HOME_YAW) <= YAW_WINDOW]
+    return float(min(twins, key=lambda t: abs(t - now)) - now)
 
 
 def _finger_yaw(s: SceneState) -> float:
@@ -115,16 +151,39 @@ def grasp_pose(s: SceneState, name: str, knobs: Knobs) -> tuple[np.ndarray, floa
     overlaps other objects least wins, so the hand does not land on a neighbour's rim.
     """
     body = s.bodies[name]
-    candidates = _rim_candidates(s, name, body) if _is_rim(name) else _box_candidates(s, body)
+    if _is_rim(name):
+        candidates = _rim_candidates(s, name, body)
+    elif _is_round(name):
+        candidates = _round_candidates(s, body)
+    else:
+        candidates = _box_candidates(s, body)
     point, yaw = min(candidates, key=lambda c: c[2] + _intrusion(s, c[0], c[1], name))[:2]
     return point + knobs.grasp_offset, yaw
+
+
+def _is_round(name: str) -> bool:
+    return any(k in name for k in ROUND)
+
+
+def _box_grasp_z(s: SceneState, body: Body) -> float:
+    """Pads just below the top; flat objects as low as the fingertips allow."""
+    return max(body.hi[2] - min(0.03, 0.5 * body.size[2]), _min_grasp_z(s))
+
+
+def _round_candidates(s: SceneState, body: Body) -> list[tuple[np.ndarray, float, float]]:
+    """Across the can's centre from any side: the current finger yaw first (no wrist turn),
+    else one of six fixed yaws 30 degrees apart, at a small cost per radian of turn, to keep
+    a finger off a neighbouring can. (Fixed, so that a target does not move as the hand turns.)
+    """
+    point = np.array([*body.center[:2], _box_grasp_z(s, body)])
+    yaws = [_finger_yaw(s)] + [HOME_YAW + k * np.pi / 6 for k in range(-3, 3)]
+    return [(point, yaw, 0.03 * abs(_yaw_error(s, yaw))) for yaw in yaws]
 
 
 def _box_candidates(s: SceneState, body: Body) -> list[tuple[np.ndarray, float, float]]:
     """(point, yaw, preference cost): across the narrow side first, centred first."""
     centre = body.center
-    # Pads just below the top; flat objects as low as the fingertips allow.
-    z = max(body.hi[2] - min(0.03, 0.5 * body.size[2]), _min_grasp_z(s))
+    z = _box_grasp_z(s, body)
     ext = body.local_hi - body.local_lo
     narrow, wide = (0.0, np.pi / 2) if ext[0] <= ext[1] else (np.pi / 2, 0.0)
     out = []
@@ -196,21 +255,30 @@ def pick(s: SceneState, name: str, knobs: Knobs) -> Step:
     if s.facts.get(f"Grasped({name})", False):
         return _lift(s, body)
     point, yaw = grasp_pose(s, name, knobs)
-    yaw_err = _wrap(yaw - _finger_yaw(s))
+    yaw_err = _yaw_error(s, yaw)
     err = point - s.eef_pos
     xy_err = float(np.linalg.norm(err[:2]))
     # A pinched cup wall is only a few millimetres thick, as thin as an empty grip: for rim
     # grasps only a fully shut gripper counts as a miss (the Grasped fact follows shortly).
-    empty = RIM_EMPTY_WIDTH if _is_rim(name) else EMPTY_WIDTH
-    if xy_err < XY_TOL and abs(err[2]) < Z_TOL:  # at the grasp point
-        if s.gripper_width < empty:  # closed on nothing: back off (re-opens above)
+    # A box or can is held across its full width: fingers closed well past it without a
+    # grasp pinched only an edge or a corner (or closed on nothing).
+    empty = RIM_EMPTY_WIDTH if _is_rim(name) else max(EMPTY_WIDTH, _grip_width(name, body, yaw) - 0.005)
+    # At the grasp point (a flat object's pads must come fully down, or they pass over it);
+    # or a little above it with the pads already well down the object's sides, where rubbing
+    # fingers can stall the last millimetres of the descent.
+    z_tol = min(Z_TOL, 0.25 * body.size[2])
+    pads_around = err[2] < 0 and -err[2] < 2 * Z_TOL and s.eef_pos[2] < body.hi[2] - 0.015
+    if xy_err < XY_TOL and (abs(err[2]) < z_tol or pads_around):
+        if s.gripper_width < empty:  # missed: back off (re-opens above) and try again
             return Step(move(s.eef_pos, s.eef_pos + [0, 0, 0.03], OPEN))
-        return Step(hold(CLOSE))
+        # Close while holding the grasp point: a zero delta does not hold the arm (the
+        # controller's goal follows it), and squeezing fingers push the hand up and away.
+        return Step(move(s.eef_pos, point, CLOSE))
     if s.gripper_width < OPEN_WIDTH:
         # Still closing near the grasp point: keep closing; anywhere else: open first, rising
         # so that a re-opening hand does not drag the object.
         if xy_err < 2 * XY_TOL and abs(err[2]) < 2 * Z_TOL and s.gripper_width > empty:
-            return Step(hold(CLOSE))
+            return Step(move(s.eef_pos, point, CLOSE))
         return Step(move(s.eef_pos, s.eef_pos + [0, 0, 0.01], OPEN))
     # Hover above the grasp, high enough that the fingertips pass over whatever lies between.
     over = _path_top(s, s.eef_pos[:2], point[:2], name, FINGER_SPAN[1]) + FINGERTIP_BELOW + 0.02
@@ -245,9 +313,15 @@ def _along_tolerance(name: str, body: Body, yaw: float) -> float:
     """How far off-centre along the finger axis the fingers may pass the object's top."""
     if _is_rim(name):
         return 0.012  # one finger goes inside the cup: centimetres of room
+    return float(np.clip(0.6 * (PAD_GAP - _grip_width(name, body, yaw)) / 2, 0.003, XY_TOL))
+
+
+def _grip_width(name: str, body: Body, yaw: float) -> float:
+    """The object's width between the pads when grasped across at finger yaw ``yaw``."""
     ext = body.local_hi - body.local_lo
-    across = ext[0] if abs(_wrap(yaw - body.yaw)) < np.pi / 4 else ext[1]  # width between the pads
-    return float(np.clip(0.6 * (PAD_GAP - across) / 2, 0.003, XY_TOL))
+    if _is_round(name):
+        return float(min(ext))  # the can's diameter
+    return float(ext[0] if abs(_wrap(yaw - body.yaw)) < np.pi / 4 else ext[1])
 
 
 def _lift(s: SceneState, body: Body) -> Step:
@@ -298,7 +372,7 @@ def place(s: SceneState, obj: str, target: str, knobs: Knobs) -> Step:
     goal, yaw = _release_pose(s, obj, target, xy[:2], release_z)
     off = goal - body.pos[:2]
     goal_xy = s.eef_pos[:2] + off
-    yaw_err = _wrap(yaw - _finger_yaw(s))
+    yaw_err = _yaw_error(s, yaw)
     # Carry the object's bottom, and the hand, over everything on the way (the target's own
     # rim included).
     reach = float(np.max(body.size[:2])) / 2 + 0.02
@@ -308,17 +382,38 @@ def place(s: SceneState, obj: str, target: str, knobs: Knobs) -> Step:
     if dist > 0.04:  # far: rise to carrying height, then travel
         if s.eef_pos[2] < carry_z - 0.03:
             return Step(move(s.eef_pos, np.array([*s.eef_pos[:2], carry_z]), CLOSE, yaw_err))
-        return Step(move(s.eef_pos, np.array([*goal_xy, carry_z]), CLOSE, yaw_err))
-    if (dist > 0.015 or abs(yaw_err) > YAW_TOL) and s.eef_pos[2] > release_z + 0.05:
-        return Step(move(s.eef_pos, np.array([*goal_xy, s.eef_pos[2]]), CLOSE, yaw_err))  # centre first
+        return Step(carry(s.eef_pos, np.array([*goal_xy, carry_z]), yaw_err))
     if _placed(s, obj, target) and knobs.release_early == 0:
         return Step(hold(OPEN))  # already counts as placed (e.g. resting on the rim): let go
-    # On(x, support) needs the origins within 3 cm; a region or container is more forgiving.
-    xy_tol = RELEASE_XY_TOL if target in s.bodies else 2 * RELEASE_XY_TOL
-    if s.eef_pos[2] - release_z > Z_TOL or dist > xy_tol:
-        # Descend, correcting; low but off-centre (a swinging load): settle first.
-        return Step(move(s.eef_pos, np.array([*goal_xy, release_z]), CLOSE, yaw_err))
+    tol = _release_tolerance(s, obj, target)
+    # Off-centre, the object's bottom stays above everything near its way to the goal (a
+    # basket's rim, a compartment's walls), so it cannot catch on an edge; once down there,
+    # a little more drift (a swinging load) is settled in place instead of rising again.
+    clear_z = _path_top(s, body.pos[:2], goal, obj, reach) + below + 0.015
+    low = s.eef_pos[2] < clear_z - 0.01
+    if np.any(np.abs(off) > (1.5 * tol if low else tol)) or abs(yaw_err) > YAW_TOL:
+        return Step(carry(s.eef_pos, np.array([*goal_xy, max(release_z, clear_z)]), yaw_err))
+    if s.eef_pos[2] - release_z > Z_TOL or np.any(np.abs(off) > tol):
+        return Step(carry(s.eef_pos, np.array([*goal_xy, release_z]), yaw_err))
     return Step(hold(OPEN))
+
+
+def _release_tolerance(s: SceneState, obj: str, target: str) -> np.ndarray:
+    """How far (world x, y) the carried object's origin may be off its goal when let go.
+
+    On(x, support) needs the origins within 3 cm. A region or container is more forgiving,
+    but a narrow compartment only leaves the room between its walls and the object.
+    """
+    if target in s.bodies:
+        return np.full(2, RELEASE_XY_TOL / np.sqrt(2))
+    tol = np.full(2, 2 * RELEASE_XY_TOL)
+    if target.endswith("contain_region"):
+        site = s.sites[target]
+        half = (np.abs(site.xmat) @ site.size)[:2]
+        b = s.bodies[obj]
+        thickness = float(np.min(b.local_hi - b.local_lo))  # the object's slimmest side
+        tol = np.clip(half - thickness / 2 - 0.003, 0.006, tol)
+    return tol
 
 
 def _release_pose(s: SceneState, obj: str, target: str, xy: np.ndarray, release_z: float) -> tuple[np.ndarray, float]:
@@ -341,7 +436,7 @@ def _release_pose(s: SceneState, obj: str, target: str, xy: np.ndarray, release_
                   for dx in (-1, 0, 1) for dy in (-1, 0, 1) if dx or dy]
     best, best_cost = (xy, now), np.inf
     for yaw in (now, 0.0, np.pi / 2, np.pi / 4, -np.pi / 4):
-        turn = _wrap(yaw - now)
+        turn = _yaw_error(s, yaw)
         c, si = np.cos(turn), np.sin(turn)
         turned = np.array([c * hang[0] - si * hang[1], si * hang[0] + c * hang[1]])
         for spot, cost in spots:
