@@ -97,6 +97,9 @@ class SceneState:
     # move each fixture or region (e.g. white_cabinet_1_bottom_region -> its drawer's slide).
     articulations: dict[str, Articulation] = field(default_factory=dict)
     joints_of: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    # The arm's own joint positions (proprioception), base to wrist: lets a primitive notice
+    # a posture the controller cannot leave by itself (e.g. the elbow locked straight).
+    arm_qpos: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 class SceneReader:
@@ -124,6 +127,7 @@ class SceneReader:
         robot = env.robots[0]
         self._eef_site = robot.eef_site_id
         self._grip_qpos = list(robot._ref_gripper_joint_pos_indexes)
+        self._arm_qpos = list(robot._ref_joint_pos_indexes)
         pads = robot.gripper.important_geoms
         self._pad_left = m.geom(pads["left_fingerpad"][0]).id
         self._pad_right = m.geom(pads["right_fingerpad"][0]).id
@@ -146,6 +150,7 @@ class SceneReader:
             table_z=self._table_z,
             articulations={name: self._articulation(name, d) for name in self._articulated},
             joints_of=self._joints_of,
+            arm_qpos=d.qpos[self._arm_qpos].copy(),
         )
 
     def _prepare_articulations(self, env):

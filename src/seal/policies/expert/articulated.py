@@ -3,26 +3,28 @@
 Each maps (scene, LIBERO name, sub-goal atom) to a `skills.Step`, reactively, like
 `skills.pick`/`skills.place`: the action is a function of the current `SceneState` alone, so a
 skill resumes after any snapshot restore, and a slipped push or grasp is retried by itself
-(the rules see the gripper out of place and bring it back).
+(the rules see the gripper out of place and bring it back). Every rule also holds on the
+policy's kinematically extrapolated scenes, where only the gripper moves: "holding" and
+"pushing" windows reach ahead of the fixture by what a chunk can move the gripper.
 
 Geometry comes from `SceneState.articulations` (joint axis and anchor, the moving part's
 collision boxes), never from per-task constants:
 
 * drawer (slide joint): the handle is the part's geometry sticking out furthest along the
-  pull direction. Close: closed fingers push the handle in, the gripper tilted toward the
-  cabinet so the forearm stays clear of the cabinet's top.
-* door (hinge joint, e.g. microwave_1): the handle is the part's geometry furthest from the
-  hinge. Close: closed fingers push the outer face of the door along its arc, high up so the
-  wide hand passes over the door's top edge. Open: grasp the handle at its top and pull it
-  along the arc, turning the wrist with the door.
-* knob (a hinge whose handle sits on its axis, flat_stove_1): grasp the ridge across, twist
-  the wrist, let go.
+  pull direction. Close: closed fingers push the handle in, leaning toward the cabinet so
+  the forearm stays off the cabinet's top. Open: with the gripper level (pointing into the
+  cabinet), pinch the bar from above and below and pull; top and middle drawers only.
+* door (hinge joint, microwave_1): the handle is the part's geometry furthest from the hinge.
+  Close: closed fingers push the outer face along its arc, high up so the wide hand passes
+  over the door's top edge. Open: pinch the handle's top and pull it round as far as the arm
+  reaches comfortably, then push the rest of the way from the inside.
+* knob (hinge, flat_stove_1): grip the ridge across, twist the wrist, let go.
 
 Every skill ends with the gripper backed away from the fixture and pointing straight down
-again, so the next skill (which only steers yaw) starts clean.
+again, so the next skill (which steers only yaw) starts clean.
 
 LIBERO's convention: a fixture is closed / off near ``qpos == 0`` and opens toward the far end
-of the joint range. Whether the sub-goal holds is read from ``scene.facts[str(goal)]``.
+of its joint range. Whether the sub-goal holds is read from ``scene.facts[str(goal)]``.
 """
 
 from __future__ import annotations
@@ -35,14 +37,39 @@ from seal.policies.expert.skills import CLOSE, OPEN, OPEN_WIDTH, POS_GAIN, YAW_G
 from seal.sim.goals import GoalAtom
 from seal.sim.scene import Articulation, Box, SceneState
 
+# Gripper geometry (Panda, measured in the eef site's frame).
 FINGER_HALF = 0.012  # half thickness of the closed fingers across the finger axis (+ margin)
 HAND_ABOVE_EEF = 0.026  # the hand's underside sits this far above the end-effector site
+WRIST_MID_YAW = 2.6  # finger-axis yaw with the wrist's last joint mid-range (measured: q7 = 0)
+AWAY = np.array([1.0, 0.0, 0.0])  # away from the robot's base (LIBERO: the arm stands at -x)
+ELBOW_LOCKED = -0.35  # Panda joint 4 above this (stop at -0.07): the arm is nearly straight
+UNLOCK_LEAN = 0.6  # radians to lean the fingers toward the robot to bend a straight elbow
+
+# Motion.
 CLEARANCE = 0.06  # how far the gripper backs away from a fixture before a skill is done
 PUSH_SPEED = 0.6  # action cap while pushing or pulling (~7 mm/step): firm, not violent
 TILT_GAIN = 1.5  # rotation action per radian of roll/pitch error
 YAW_TOL = 0.15  # finger-axis alignment needed before going down next to a fixture
 UPRIGHT_TOL = 0.1  # radians of tilt still counted as pointing straight down
+
+# Drawers.
 DRAWER_TILT = 0.5  # radians the fingers lean toward a drawer while pushing it
+LEVEL_YAW = 0.5  # the level gripper points this far off straight-in, away from the robot
+GRIP_OUT = 0.006  # eef this far out from the bar's centre to pinch it: pads on it, tips short of the face
+LEVEL_CLEARANCE = 0.12  # height to rise to, level, before pointing down again (the hand swings)
+OPEN_TO = 0.155  # how far to pull a drawer (LIBERO: open beyond 0.14 of its 0.16 travel)
+
+# Doors.
+DOOR_LEAD = 0.25  # radians the push (or pull) target runs ahead of the door along its arc
+DOOR_PULL_TO = 0.85  # radians to pull a door open by its handle before pushing it the rest of the way
+DOOR_INNER_REACH = 0.75  # push a door open this far out along it (fraction of the handle's radius)
+DOOR_OPEN_TO = 1.38  # radians to push a door open to (LIBERO's microwave: open beyond 1.3)
+DOOR_GRIP_OUT = 0.006  # grip this far out beyond the handle's axis: the hand then clears the door's face
+
+# Knobs.
+KNOB_GRIP_DEPTH = 0.02  # eef this far below the ridge's top: pads on the ridge, tips above the dial
+KNOB_LEAD = 0.4  # radians the wrist runs ahead of the knob while twisting
+KNOB_ON_AT = 0.5  # LIBERO's stove is on from qpos 0.5
 
 UP = np.array([0.0, 0.0, 1.0])
 DOWN = -UP
@@ -91,11 +118,6 @@ def _openness(a: Articulation) -> float:
     return a.qpos * _open_sign(a)
 
 
-def _rotate_z(v: np.ndarray, angle: float) -> np.ndarray:
-    c, si = np.cos(angle), np.sin(angle)
-    return np.array([c * v[0] - si * v[1], si * v[0] + c * v[1], v[2]])
-
-
 def _owner(s: SceneState, name: str) -> str:
     """The fixture a region belongs to (or the name itself)."""
     return max((n for n in s.bodies if name == n or name.startswith(n + "_")), key=len, default=name)
@@ -109,6 +131,12 @@ def _travel_height(s: SceneState, lo: np.ndarray, hi: np.ndarray, floor: float, 
         if name != skip and b.lo[0] < hi[0] and b.hi[0] > lo[0] and b.lo[1] < hi[1] and b.hi[1] > lo[1]:
             top = max(top, b.hi[2])
     return top + 0.05
+
+
+def _rotate(v: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
+    """Rodrigues: ``v`` turned by ``angle`` about the unit ``axis``."""
+    c, si = np.cos(angle), np.sin(angle)
+    return v * c + np.cross(axis, v) * si + axis * (axis @ v) * (1 - c)
 
 
 # ---- actions -----------------------------------------------------------------------------
@@ -167,9 +195,6 @@ def _misalign(s: SceneState, finger_dir: np.ndarray) -> float:
     return float(min(d, np.pi - d))
 
 
-WRIST_MID_YAW = 2.6  # finger-axis yaw with the wrist's last joint mid-range (measured: q7 = 0)
-
-
 def _wrist(yaw: float) -> float:
     """A finger-axis yaw as an offset from the wrist's mid-range, in [-pi, pi)."""
     return (yaw - WRIST_MID_YAW + np.pi) % (2 * np.pi) - np.pi
@@ -189,6 +214,100 @@ def _keep_gripper(s: SceneState) -> float:
     return CLOSE if s.gripper_width < 0.04 else OPEN
 
 
+def _frame(finger: np.ndarray, point: np.ndarray) -> np.ndarray:
+    """End-effector orientation with the fingers pointing along ``point`` and closing along
+    ``finger`` (columns: finger axis, z x finger, pointing direction)."""
+    z = _unit(point)
+    x = _unit(finger - (finger @ z) * z)
+    return np.stack([x, np.cross(z, x), z], axis=1)
+
+
+def _rotvec(rot: np.ndarray) -> np.ndarray:
+    """Axis * angle of a rotation matrix."""
+    angle = float(np.arccos(np.clip((np.trace(rot) - 1) / 2, -1.0, 1.0)))
+    if angle < 1e-6:
+        return np.zeros(3)
+    if angle > np.pi - 1e-3:  # half turn: the axis is the eigenvector of eigenvalue 1
+        w, v = np.linalg.eigh((rot + rot.T) / 2)
+        return v[:, np.argmax(w)] * angle
+    axis = np.array([rot[2, 1] - rot[1, 2], rot[0, 2] - rot[2, 0], rot[1, 0] - rot[0, 1]])
+    return axis / (2 * np.sin(angle)) * angle
+
+
+def _pose_rotation(s: SceneState, finger: np.ndarray, point: np.ndarray) -> np.ndarray:
+    """World-frame axis*angle from the current orientation to the target (the finger axis
+    either way round, whichever is the smaller turn)."""
+    options = [_rotvec(_frame(f, point) @ s.eef_xmat.T) for f in (finger, -finger)]
+    return min(options, key=lambda v: float(np.linalg.norm(v)))
+
+
+def _pose_error(s: SceneState, finger: np.ndarray, point: np.ndarray) -> float:
+    return float(np.linalg.norm(_pose_rotation(s, finger, point)))
+
+
+def _act_pose(s: SceneState, goal: np.ndarray, gripper: float, finger: np.ndarray, point: np.ndarray,
+              cap: float = 1.0) -> np.ndarray:
+    """Like `_act`, with the whole orientation steered from the eef frame (for poses where
+    the finger axis is not horizontal, so yaw alone says nothing)."""
+    action = _act(s, goal, gripper, cap=cap)
+    action[3:6] = np.clip(TILT_GAIN * _pose_rotation(s, finger, point), -1.0, 1.0)
+    return action
+
+
+# ---- moves shared by the skills ------------------------------------------------------------
+def _approach(s: SceneState, ready: np.ndarray, gripper: float, finger_dir: np.ndarray, point: np.ndarray,
+              a: Articulation, floor: float, skip: str, signed: bool = False) -> np.ndarray:
+    """Get to ``ready`` (next to a handle) without sweeping through anything: across at a
+    travel height, then straight down once turned the right way.
+
+    The travel height clears ``floor`` and every object (but the fixture ``skip``) under the
+    path or the moving part ``a``. A gripper below it goes up first; one well above it comes
+    down first: far out and high the arm is nearly straight, and a move toward the robot from
+    there locks its elbow at the joint stop, after which it no longer follows at all. Heights
+    are absolute targets, so the arm's sag during fast moves is corrected, not accumulated."""
+    if _elbow_locked(s):
+        # Lean the fingers toward the robot where the gripper is: that bends the elbow off its
+        # stop (measured), after which moving on straightens the gripper and keeps the bend.
+        lean = _unit(DOWN * np.cos(UNLOCK_LEAN) - AWAY * np.sin(UNLOCK_LEAN))
+        return _act(s, s.eef_pos, gripper, finger_dir, lean, signed=signed)
+    err = ready - s.eef_pos
+    turned = abs(_yaw_err(s, finger_dir, signed=True)) if signed else _misalign(s, finger_dir)
+    if np.linalg.norm(err[:2]) < 0.015 and turned < YAW_TOL:
+        return _act(s, ready, gripper, finger_dir, point, signed=signed)  # straight down (or up) onto it
+    # Lean (if at all) only near the ready point: turning while travelling far out, too, can
+    # swing the arm into that locked-elbow pose.
+    if np.linalg.norm(err[:2]) > 0.05:
+        point = DOWN
+    lo = np.minimum.reduce([a.part.lo, s.eef_pos, ready])
+    hi = np.maximum.reduce([a.part.hi, s.eef_pos, ready])
+    high = max(_travel_height(s, lo, hi, floor, skip), ready[2] + 0.04)
+    if abs(s.eef_pos[2] - high) > 0.03:
+        return _act(s, np.array([*s.eef_pos[:2], high]), gripper, finger_dir, point, signed=signed)  # up/down first
+    return _act(s, np.array([ready[0], ready[1], high]), gripper, finger_dir, point, signed=signed)
+
+
+def _elbow_locked(s: SceneState) -> bool:
+    """Whether the arm is stretched with its elbow (Panda joint 4) almost at its straight-arm
+    stop, where the controller cannot bend it back by moving the gripper toward the robot."""
+    return len(s.arm_qpos) >= 4 and s.arm_qpos[3] > ELBOW_LOCKED
+
+
+def _back_off(s: SceneState, away: np.ndarray, ahead: float, far: float) -> Step:
+    """Retreat along ``away`` until ``ahead`` (the eef's offset that way) reaches ``far``,
+    straightening the gripper to point down, then report done."""
+    if ahead > far - 0.01 and _tilt(s) < UPRIGHT_TOL:
+        return Step(_still(s, _keep_gripper(s)), done=True)
+    target = s.eef_pos + away * max(far - ahead, 0.0) + UP * 0.01
+    return Step(_act(s, target, _keep_gripper(s)))
+
+
+def _rise(s: SceneState, height: float) -> Step:
+    """Go up to ``height`` with the gripper straightening, then report done."""
+    if s.eef_pos[2] > height - 0.01 and _tilt(s) < UPRIGHT_TOL:
+        return Step(_still(s, _keep_gripper(s)), done=True)
+    return Step(_act(s, np.array([*s.eef_pos[:2], max(height, s.eef_pos[2])]), _keep_gripper(s)))
+
+
 # ---- drawers -----------------------------------------------------------------------------
 @dataclass(frozen=True)
 class _Drawer:
@@ -196,6 +315,8 @@ class _Drawer:
     side: np.ndarray  # horizontal unit vector across the drawer front
     handle: np.ndarray  # centre of the handle bar
     front: float  # outermost reach of the handle along `pull`, from the handle centre
+    bar_top: float  # top of the handle bar
+    bar_half: float  # half length of the handle bar (along `side`)
     top: float  # top of the drawer
 
 
@@ -208,7 +329,8 @@ def _drawer(a: Articulation) -> _Drawer:
     lo = np.min([g.lo for g in bar], axis=0)
     hi = np.max([g.hi for g in bar], axis=0)
     handle = (lo + hi) / 2
-    return _Drawer(pull=pull, side=side, handle=handle, front=float(outer - handle @ pull), top=float(a.part.hi[2]))
+    return _Drawer(pull=pull, side=side, handle=handle, front=float(outer - handle @ pull), bar_top=float(hi[2]),
+                   bar_half=float(np.abs(hi - lo) @ np.abs(side)) / 2, top=float(a.part.hi[2]))
 
 
 def close_drawer(s: SceneState, obj: str, goal: GoalAtom) -> Step:
@@ -231,35 +353,60 @@ def close_drawer(s: SceneState, obj: str, goal: GoalAtom) -> Step:
         target = g.handle + g.pull * (contact - remaining)
         return Step(_act(s, target, CLOSE, g.side, lean, cap=PUSH_SPEED))
     ready = g.handle + g.pull * (contact + 0.03)
-    return Step(_approach(s, ready, CLOSE, g.side, lean, _drawer_travel(s, obj, a, g)))
+    return Step(_approach(s, ready, CLOSE, g.side, lean, a, max(g.top, g.handle[2] + 0.03), _owner(s, obj)))
 
 
-def _drawer_travel(s: SceneState, obj: str, a: Articulation, g: _Drawer) -> float:
-    """Height to move above the drawer at: over its top and whatever sits in it."""
-    return _travel_height(s, a.part.lo, a.part.hi, max(g.top, g.handle[2] + 0.03), skip=_owner(s, obj))
+def open_drawer(s: SceneState, obj: str, goal: GoalAtom) -> Step:
+    """Pinch the handle bar from the front with the gripper level (pointing into the
+    cabinet, fingers above and below the bar), pull the drawer out, let go, back away and
+    point down again.
 
-
-def _approach(s: SceneState, ready: np.ndarray, gripper: float, finger_dir: np.ndarray, point: np.ndarray,
-              travel_z: float) -> np.ndarray:
-    """Get to ``ready`` (next to a handle) without sweeping through anything: up to
-    ``travel_z``, across, then straight down once turned the right way. Heights are absolute
-    targets, so the arm's sag during fast moves is corrected rather than accumulated."""
-    err = ready - s.eef_pos
-    if np.linalg.norm(err[:2]) < 0.015 and _misalign(s, finger_dir) < YAW_TOL:
-        return _act(s, ready, gripper, finger_dir, point)  # straight down (or up) onto it
-    high = max(travel_z, ready[2] + 0.04)
-    if s.eef_pos[2] < high - 0.02:
-        return _act(s, np.array([*s.eef_pos[:2], high]), gripper, finger_dir, point)  # up first
-    return _act(s, np.array([ready[0], ready[1], high]), gripper, finger_dir, point)
-
-
-def _back_off(s: SceneState, away: np.ndarray, ahead: float, far: float) -> Step:
-    """Retreat along ``away`` until ``ahead`` (the eef's offset that way) reaches ``far``,
-    straightening the gripper to point down, then report done."""
-    if ahead > far - 0.01 and _tilt(s) < UPRIGHT_TOL:
-        return Step(_still(s, _keep_gripper(s)), done=True)
-    target = s.eef_pos + away * max(far - ahead, 0.0) + UP * 0.01
-    return Step(_act(s, target, _keep_gripper(s)))
+    With the gripper pointing down the bar cannot be held: the slot behind it is narrower
+    than a finger, and straddling it along the pull would put the hand (20 cm along the
+    finger axis) into the cabinet's face. Level, the hand reaches 10 cm above and below the
+    bar, so this needs the handle that high above the table (top and middle drawers)."""
+    a = _joint(s, obj, want_open=True)
+    g = _drawer(a)
+    rel = s.eef_pos - g.handle
+    ahead, lateral, dz = rel @ g.pull, rel @ g.side, rel[2]
+    point_in = _unit(-g.pull * np.cos(LEVEL_YAW) + AWAY * np.sin(LEVEL_YAW))
+    if s.facts.get(str(goal), False):
+        if s.gripper_width < OPEN_WIDTH and ahead < GRIP_OUT + 0.03:
+            return Step(_act_pose(s, s.eef_pos, OPEN, UP, point_in))  # let go first
+        # Slide off the end of the bar (away from the robot: backing straight out can run the
+        # wrist into whatever stands behind it), go up, still level (the hand reaches 10 cm
+        # below the fingers), then turn to point down again.
+        off = g.side if g.side @ AWAY >= 0 else -g.side
+        along = rel @ off
+        if along < g.bar_half + 0.03 and dz < 0.02:
+            target = s.eef_pos + off * (g.bar_half + 0.04 - along)
+            return Step(_act_pose(s, target, OPEN, UP, point_in))
+        if dz < LEVEL_CLEARANCE - 0.01:
+            target = np.array([*s.eef_pos[:2], g.handle[2] + LEVEL_CLEARANCE])
+            return Step(_act_pose(s, target, OPEN, UP, point_in))
+        return _rise(s, s.eef_pos[2])
+    near_line = abs(lateral) < 0.02 and abs(dz) < 0.02
+    if near_line and -0.01 < ahead < 0.15 and 0.012 < s.gripper_width < 0.05:
+        # Holding the bar: pull straight out (the window is long: the drawer comes along,
+        # and the policy's chunk extrapolation moves only the gripper).
+        remaining = OPEN_TO - _openness(a)
+        target = s.eef_pos + g.pull * max(remaining, 0.0) - g.side * lateral
+        target[2] = g.handle[2]
+        return Step(_act_pose(s, target, CLOSE, UP, point_in, cap=PUSH_SPEED))
+    grip = g.handle + g.pull * GRIP_OUT
+    err = grip - s.eef_pos
+    aligned = _pose_error(s, UP, point_in) < 0.15
+    if s.gripper_width < OPEN_WIDTH:
+        if np.linalg.norm(err) < 0.012 and s.gripper_width > 0.012:
+            return Step(_act_pose(s, grip, CLOSE, UP, point_in))  # still closing on the bar
+        # Closed on nothing, or stale: open, backing out.
+        return Step(_act_pose(s, s.eef_pos + g.pull * 0.01, OPEN, UP, point_in))
+    if np.linalg.norm(err) < 0.006 and aligned:
+        return Step(_act_pose(s, grip, CLOSE, UP, point_in))  # there: pinch
+    if abs(lateral) < 0.012 and abs(dz) < 0.012 and GRIP_OUT - 0.01 < ahead < GRIP_OUT + 0.14 and aligned:
+        return Step(_act_pose(s, grip, OPEN, UP, point_in, cap=PUSH_SPEED))  # straight in
+    # Anywhere else: to a point level with the bar, out in front of it, turning level.
+    return Step(_act_pose(s, g.handle + g.pull * (GRIP_OUT + 0.1), OPEN, UP, point_in))
 
 
 # ---- doors -------------------------------------------------------------------------------
@@ -269,7 +416,9 @@ class _Door:
     along: np.ndarray  # horizontal unit vector from the hinge along the door to its free edge
     push: np.ndarray  # horizontal unit normal of the door face that closing pushes on
     face: float  # offset of that face from the hinge along `push`
+    inner: float  # offset of the other face from the hinge along `-push`
     handle: np.ndarray  # centre of the handle
+    handle_top: float  # top of the handle
     radius: float  # the handle's distance from the hinge
     top: float  # top edge of the door
 
@@ -279,14 +428,9 @@ class _Door:
 
     def point(self, radius: float, offset: float, z: float, toward_closed: float = 0.0) -> np.ndarray:
         """World point ``radius`` along the door and ``offset`` off its pushed face's side."""
-        p = self.a.anchor + self.turned(self.along, toward_closed) * radius + self.turned(self.push, toward_closed) * offset
+        along, push = self.turned(self.along, toward_closed), self.turned(self.push, toward_closed)
+        p = self.a.anchor + along * radius + push * offset
         return np.array([p[0], p[1], z])
-
-
-def _rotate(v: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
-    """Rodrigues: ``v`` turned by ``angle`` about the unit ``axis``."""
-    c, si = np.cos(angle), np.sin(angle)
-    return v * c + np.cross(axis, v) * si + axis * (axis @ v) * (1 - c)
 
 
 def _door(a: Articulation) -> _Door:
@@ -301,11 +445,11 @@ def _door(a: Articulation) -> _Door:
     far = max(d for g, d in zip(a.geoms, dist) if g is not plate)
     grip = [g for g, d in zip(a.geoms, dist) if g is not plate and d > far - 0.03]
     handle = np.mean([g.center for g in grip], axis=0)
-    return _Door(a=a, along=along, push=push, face=_extent(plate, push) - float(a.anchor @ push),
-                 handle=handle, radius=float(np.linalg.norm(_flat(handle - a.anchor))), top=float(plate.hi[2]))
-
-
-DOOR_LEAD = 0.25  # radians the push target runs ahead of the door while closing it
+    return _Door(a=a, along=along, push=push,
+                 face=_extent(plate, push) - float(a.anchor @ push),
+                 inner=_extent(plate, -push) + float(a.anchor @ push),
+                 handle=handle, handle_top=max(float(g.hi[2]) for g in grip),
+                 radius=float(np.linalg.norm(_flat(handle - a.anchor))), top=float(plate.hi[2]))
 
 
 def close_door(s: SceneState, obj: str, goal: GoalAtom) -> Step:
@@ -320,7 +464,7 @@ def close_door(s: SceneState, obj: str, goal: GoalAtom) -> Step:
     z = d.top - HAND_ABOVE_EEF + 0.015  # hand just above the top edge, fingers on the face
     reach = d.radius - 0.07  # push point: well out along the door, clear of the handle
     lead = min(DOOR_LEAD, _openness(a) + 0.05)  # end pressing just past closed
-    pushing = abs(radial - reach) < 0.04 and abs(s.eef_pos[2] - z) < 0.02 and -0.06 < off < FINGER_HALF + 0.05
+    pushing = abs(radial - reach) < 0.04 and abs(s.eef_pos[2] - z) < 0.012 and -0.06 < off < FINGER_HALF + 0.05
     if pushing:
         target = d.point(reach, d.face + FINGER_HALF, z, toward_closed=lead)
         return Step(_act(s, target, CLOSE, d.turned(d.along, lead), cap=PUSH_SPEED))
@@ -329,8 +473,92 @@ def close_door(s: SceneState, obj: str, goal: GoalAtom) -> Step:
         out = d.turned(d.push, _openness(a))  # the closed door's outward normal
         return Step(_act(s, s.eef_pos + out * (inside + 0.05), _keep_gripper(s)))
     ready = d.point(reach, d.face + FINGER_HALF + 0.03, z)
-    travel = _travel_height(s, a.part.lo, a.part.hi, d.top, skip=_owner(s, obj))
-    return Step(_approach(s, ready, CLOSE, d.along, DOWN, travel))
+    return Step(_approach(s, ready, CLOSE, d.along, DOWN, a, d.top, _owner(s, obj)))
+
+
+def open_door(s: SceneState, obj: str, goal: GoalAtom) -> Step:
+    """Pull the door open by its handle as far as the arm comfortably reaches, then let go
+    and push the rest of the way from the door's inner face; back away once it is open."""
+    d = _door(_joint(s, obj, want_open=True))
+    if s.facts.get(str(goal), False):
+        grip = _handle_grip(d)
+        if s.gripper_width < OPEN_WIDTH and np.linalg.norm(s.eef_pos - grip) < 0.03:
+            return Step(_still(s, OPEN))  # let go of the handle first
+        side = d.push if (s.eef_pos - d.a.anchor) @ d.push > 0 else -d.push  # the side the gripper is on
+        face = d.face if side @ d.push > 0 else d.inner
+        return _back_off(s, side, float((s.eef_pos - d.a.anchor) @ side), face + 0.04 + CLEARANCE)
+    if _openness(d.a) < DOOR_PULL_TO:
+        return _pull_handle(s, d, obj)
+    return _push_open(s, d, obj)
+
+
+def _handle_grip(d: _Door) -> np.ndarray:
+    """Where the eef pinches the handle: at the handle's radius, just out from its axis (so
+    the hand, right above the fingers, clears the door's face), with the pads on the handle's
+    top end and its post (the hand cannot go lower: it would sit on the handle)."""
+    out = float((d.handle - d.a.anchor) @ d.push) + DOOR_GRIP_OUT
+    return d.point(d.radius, out, d.handle_top - HAND_ABOVE_EEF + 0.01)
+
+
+def _pull_handle(s: SceneState, d: _Door, obj: str) -> Step:
+    """Pinch the handle (fingers either side of it along the door) and pull it round the
+    hinge, turning the wrist with the door."""
+    a = d.a
+    rel = _flat(s.eef_pos - a.anchor)
+    grip = _handle_grip(d)
+    out = float((grip - a.anchor) @ d.push)
+    # Hold the side of the handle that leaves the wrist room to turn with the door.
+    swing = -_open_sign(a) * float(a.axis[2]) * (DOOR_PULL_TO - _openness(a))  # yaw still to come
+    finger = _wrist_side(s, d.along, then=swing)
+    # Where the eef is around the hinge, relative to the grip point: the door moves with a
+    # held handle, and the policy's chunk extrapolation moves only the gripper, so holding is
+    # judged by radius and by angle ahead (in the opening direction) of the grip.
+    radius = float(np.hypot(d.radius, out))
+    ahead = float(np.arctan2(rel @ d.push, rel @ d.along) - np.arctan2(out, d.radius))
+    on_arc = abs(np.linalg.norm(rel) - radius) < 0.03 and abs(s.eef_pos[2] - grip[2]) < 0.03
+    if on_arc and -0.1 < ahead < DOOR_LEAD + 0.15 and 0.012 < s.gripper_width < 0.05:
+        target = d.point(d.radius, out, grip[2], toward_closed=-DOOR_LEAD)
+        return Step(_act(s, target, CLOSE, d.turned(finger, -DOOR_LEAD), cap=PUSH_SPEED, signed=True))
+    err = grip - s.eef_pos
+    if s.gripper_width < OPEN_WIDTH:
+        if np.linalg.norm(err) < 0.012 and s.gripper_width > 0.012:
+            return Step(_act(s, grip, CLOSE, finger, signed=True))  # still closing on it
+        return Step(_act(s, s.eef_pos + d.push * 0.01, OPEN, finger, signed=True))  # open, backing out
+    aligned = abs(_yaw_err(s, finger, signed=True)) < 0.1
+    if np.linalg.norm(err) < 0.006 and aligned:
+        return Step(_act(s, grip, CLOSE, finger, signed=True))  # there: pinch
+    offset = rel @ d.push - out  # how far out in front of the grip point
+    if abs(float(rel @ d.along) - d.radius) < 0.01 and abs(err[2]) < 0.01 and -0.01 < offset < 0.08 and aligned:
+        return Step(_act(s, grip, OPEN, finger, cap=PUSH_SPEED, signed=True))  # straight in
+    ready = d.point(d.radius, out + 0.05, grip[2])
+    return Step(_approach(s, ready, OPEN, finger, DOWN, a, d.top, _owner(s, obj), signed=True))
+
+
+def _push_open(s: SceneState, d: _Door, obj: str) -> Step:
+    """Push the half-open door further open from its inner face, near the hinge (little
+    reach needed), like `close_door` from the other side."""
+    a = d.a
+    rel = s.eef_pos - a.anchor
+    grip = _handle_grip(d)
+    if s.gripper_width < OPEN_WIDTH and np.linalg.norm(s.eef_pos - grip) < 0.03:
+        return Step(_still(s, OPEN))  # still holding the handle: let go
+    out = float((grip - a.anchor) @ d.push)
+    round_handle = abs(rel @ d.along - d.radius) < 0.05 and -0.02 < rel @ d.push - out < 0.04
+    if round_handle and s.eef_pos[2] < d.handle_top + 0.02:
+        # Fingers round the handle's top: straight up off it first (backing out, away from
+        # the hinge, would take the arm out of reach).
+        return Step(_act(s, np.array([*s.eef_pos[:2], d.handle_top + 0.02]), OPEN))
+    z = d.top - HAND_ABOVE_EEF + 0.015  # hand just above the door's top edge, fingers on its face
+    reach = DOOR_INNER_REACH * d.radius
+    radial, off = rel @ d.along, rel @ -d.push - d.inner  # along the door; in from its inner face
+    if abs(radial - reach) < 0.04 and abs(s.eef_pos[2] - z) < 0.012 and -0.06 < off < FINGER_HALF + 0.05:
+        lead = min(DOOR_LEAD, DOOR_OPEN_TO - _openness(a) + 0.05)
+        target = d.point(reach, -(d.inner + FINGER_HALF), z, toward_closed=-lead)
+        return Step(_act(s, target, CLOSE, d.turned(d.along, -lead), cap=PUSH_SPEED))
+    ready = d.point(reach, -(d.inner + FINGER_HALF + 0.03), z)
+    # Over the door's top edge only just: the door is far out, where the arm has little reach
+    # left to go higher (stretched, its elbow locks straight and it stops following).
+    return Step(_approach(s, ready, CLOSE, d.along, DOWN, a, d.top - 0.025, _owner(s, obj)))
 
 
 def _inside(s: SceneState, d: _Door, fixture: str) -> float:
@@ -366,10 +594,6 @@ def _knob(a: Articulation) -> _Knob:
     return _Knob(a=a, centre=centre, across=across, top=top)
 
 
-KNOB_GRIP_DEPTH = 0.02  # eef this far below the ridge's top: pads on the ridge, tips above the dial
-KNOB_LEAD = 0.4  # radians the wrist runs ahead of the knob while twisting
-
-
 def turn_knob(s: SceneState, obj: str, goal: GoalAtom, on: bool) -> Step:
     """Grip the knob's ridge across, twist the wrist until the knob is on (or off), let go,
     and rise clear."""
@@ -382,7 +606,7 @@ def turn_knob(s: SceneState, obj: str, goal: GoalAtom, on: bool) -> Step:
             # Let go of the ridge before moving; but a knob let go while still pressed into
             # its stop springs back past "off": first hold still until it has eased off.
             if s.gripper_width < 0.05 and not on and _pressed_into_stop(k.a):
-                return Step(np.array([0, 0, 0, 0, 0, 0, CLOSE], dtype=np.float64))  # no rotation: hold the goal
+                return Step(np.array([0, 0, 0, 0, 0, 0, CLOSE], dtype=np.float64))  # keep the controller's goal
             return Step(_still(s, OPEN))
         return _rise(s, k.top + CLEARANCE)
     # Hold the ridge the way round that leaves the wrist room for the whole twist: a 1.5 rad
@@ -408,18 +632,10 @@ def turn_knob(s: SceneState, obj: str, goal: GoalAtom, on: bool) -> Step:
     return Step(_act(s, hover, OPEN, grip, signed=True))
 
 
-KNOB_ON_AT = 0.5  # LIBERO's stove is on from qpos 0.5
 def _pressed_into_stop(a: Articulation) -> bool:
     """Whether the joint sits measurably past its closed-side limit (MuJoCo's limits are soft)."""
     stop = a.range[0] if _open_sign(a) > 0 else a.range[1]
     return (stop - a.qpos) * _open_sign(a) > 0.0005
-
-
-def _rise(s: SceneState, height: float) -> Step:
-    """Go up to ``height`` with the gripper straightening, then report done."""
-    if s.eef_pos[2] > height - 0.01 and _tilt(s) < UPRIGHT_TOL:
-        return Step(_still(s, _keep_gripper(s)), done=True)
-    return Step(_act(s, np.array([*s.eef_pos[:2], max(height, s.eef_pos[2])]), _keep_gripper(s)))
 
 
 def turn_on(s: SceneState, obj: str, goal: GoalAtom) -> Step:
@@ -431,11 +647,20 @@ def turn_off(s: SceneState, obj: str, goal: GoalAtom) -> Step:
 
 
 # ---- dispatch ----------------------------------------------------------------------------
+def open_(s: SceneState, obj: str, goal: GoalAtom) -> Step:
+    """Open a drawer (region of a cabinet) or a door (microwave)."""
+    a = _joint(s, obj, want_open=True)
+    if a.kind == "slide":
+        return open_drawer(s, obj, goal)
+    return open_door(s, obj, goal)
+
+
 def close(s: SceneState, obj: str, goal: GoalAtom) -> Step:
+    """Close a drawer (region of a cabinet) or a door (microwave)."""
     a = _joint(s, obj, want_open=False)
     if a.kind == "slide":
         return close_drawer(s, obj, goal)
     return close_door(s, obj, goal)
 
 
-ARTICULATED_SKILLS: dict = {"close": close, "turn_on": turn_on, "turn_off": turn_off}
+ARTICULATED_SKILLS: dict = {"open": open_, "close": close, "turn_on": turn_on, "turn_off": turn_off}
