@@ -127,3 +127,13 @@ def test_value_method_executes_the_best_scored_chunk_each_step(pool, tmp_path):
     assert result.steps == len(result.executed_actions) == 30
     with pytest.raises(InvalidInput, match="needs a chunk scorer"):
         Steerer(pool, expert_policy(BOOK, FailureKnobs()), None, SteerConfig(method="value", k=4))
+
+
+def test_random_method_picks_one_finished_candidate_unverified(pool, tmp_path):
+    config = SteerConfig(method="random", k=4, max_steps=60, seed=5)
+    result, trace = _steer(pool, config, None, FailureKnobs.misaligned(), tmp_path)
+    assert result.verifier_calls == 0 and result.fallbacks == 0
+    commits = [e for e in trace if e["event"] == "commit"]
+    assert commits and all(c["verdict"] is None for c in commits)
+    first_round = [e for e in trace if e["event"] == "candidate"][:4]
+    assert commits[0]["slot"] in {c["slot"] for c in first_round if c["ended_by"] != "error"}

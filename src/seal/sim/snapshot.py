@@ -1,6 +1,6 @@
 """Snapshots: everything that shapes a LIBERO world's future, small enough to send between processes.
 
-What "everything" is was found by experiment (see tests/test_snapshot.py):
+What "everything" is was found by experiment (see tests/test_world.py):
 
 - MuJoCo's full integration state (``mjSTATE_INTEGRATION``): time, qpos, qvel, actuator
   activations, ctrl, applied forces, mocap poses, and ``qacc_warmstart`` - the solver's warm
