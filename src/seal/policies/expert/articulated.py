@@ -40,8 +40,9 @@ from seal.sim.scene import Articulation, Box, SceneState
 # Gripper geometry (Panda, measured in the eef site's frame).
 FINGER_HALF = 0.012  # half thickness of the closed fingers across the finger axis (+ margin)
 HAND_ABOVE_EEF = 0.026  # the hand's underside sits this far above the end-effector site
-WRIST_MID_YAW = 2.6  # finger-axis yaw with the wrist's last joint mid-range (measured: q7 = 0)
+WRIST_MID_YAW = 2.6  # finger-axis yaw with the wrist's last joint mid-range, arm at rest (measured)
 AWAY = np.array([1.0, 0.0, 0.0])  # away from the robot's base (LIBERO: the arm stands at -x)
+WRIST_SAFE = 2.2  # the wrist's last joint (stops at +-2.9) is kept within this while turning
 ELBOW_LOCKED = -0.35  # Panda joint 4 above this (stop at -0.07): the arm is nearly straight
 UNLOCK_LEAN = 0.6  # radians to lean the fingers toward the robot to bend a straight elbow
 
@@ -168,11 +169,11 @@ def _yaw_err(s: SceneState, finger_dir: np.ndarray, signed: bool = False) -> flo
     """Yaw that turns the finger axis onto ``finger_dir`` (``signed``: pad to pad exactly;
     else either way round, whichever keeps the wrist nearer the middle of its range).
 
-    Angles are measured from WRIST_MID_YAW and never wrap through the opposite direction,
-    where the wrist's last joint hits its stops: the wrist may turn the long way round
+    Angles are measured from the wrist's mid-range and never wrap through the opposite
+    direction, where its last joint hits its stops: the wrist may turn the long way round
     rather than into a stop."""
-    now = _wrist(_finger_yaw(s))
-    target = _wrist(_yaw_of(finger_dir if signed else _wrist_side(s, finger_dir)))
+    now = _wrist(s, _finger_yaw(s))
+    target = _wrist(s, _yaw_of(finger_dir if signed else _wrist_side(s, finger_dir)))
     return target - now
 
 
@@ -180,10 +181,10 @@ def _wrist_side(s: SceneState, finger_dir: np.ndarray, then: float = 0.0) -> np.
     """Of ``finger_dir`` and its opposite (the same grip for a symmetric gripper), the one
     that leaves the wrist nearest the middle of its range after a further ``then`` radians
     of yaw; ties go to the nearer one, so the choice does not flip back and forth."""
-    now = _wrist(_finger_yaw(s))
+    now = _wrist(s, _finger_yaw(s))
 
     def cost(d: np.ndarray) -> float:
-        t = _wrist(_yaw_of(d))
+        t = _wrist(s, _yaw_of(d))
         return abs(t + then) + 0.5 * abs(t - now)
 
     return min((finger_dir, -finger_dir), key=cost)
@@ -195,9 +196,13 @@ def _misalign(s: SceneState, finger_dir: np.ndarray) -> float:
     return float(min(d, np.pi - d))
 
 
-def _wrist(yaw: float) -> float:
-    """A finger-axis yaw as an offset from the wrist's mid-range, in [-pi, pi)."""
-    return (yaw - WRIST_MID_YAW + np.pi) % (2 * np.pi) - np.pi
+def _wrist(s: SceneState, yaw: float) -> float:
+    """A finger-axis yaw as an offset from the wrist's mid-range, in [-pi, pi): minus the
+    angle the wrist's last joint would have there, with the gripper pointing down (yaw +1
+    turns that joint by -1, measured). Without the arm's joint positions, WRIST_MID_YAW is
+    where that joint is mid-range with the arm near its rest pose."""
+    mid = _finger_yaw(s) + float(s.arm_qpos[6]) if len(s.arm_qpos) >= 7 else WRIST_MID_YAW
+    return (yaw - mid + np.pi) % (2 * np.pi) - np.pi
 
 
 def _yaw_of(v: np.ndarray) -> float:
@@ -235,10 +240,17 @@ def _rotvec(rot: np.ndarray) -> np.ndarray:
 
 
 def _pose_rotation(s: SceneState, finger: np.ndarray, point: np.ndarray) -> np.ndarray:
-    """World-frame axis*angle from the current orientation to the target (the finger axis
-    either way round, whichever is the smaller turn)."""
+    """World-frame axis*angle from the current orientation to the target, the finger axis
+    either way round: the smaller turn, unless it would take the wrist's last joint (which
+    turns the hand about its pointing axis, by +1 rad per rad, measured) near its stops."""
     options = [_rotvec(_frame(f, point) @ s.eef_xmat.T) for f in (finger, -finger)]
-    return min(options, key=lambda v: float(np.linalg.norm(v)))
+    wrist = float(s.arm_qpos[6]) if len(s.arm_qpos) >= 7 else 0.0
+
+    def cost(v: np.ndarray) -> float:
+        after = abs(wrist + float(v @ s.eef_xmat[:, 2]))
+        return float(np.linalg.norm(v)) + 10.0 * max(0.0, after - WRIST_SAFE)
+
+    return min(options, key=cost)
 
 
 def _pose_error(s: SceneState, finger: np.ndarray, point: np.ndarray) -> float:
