@@ -93,7 +93,7 @@ class SceneState:
     joints: dict[str, float] = field(default_factory=dict)  # articulated fixtures' joints
     facts: dict[str, bool] = field(default_factory=dict)  # goal atoms asked for -> truth
     table_z: float = 0.0  # height of the table top under the scene
-    # Articulated fixtures' joints in full (by joint name, as in `joints`), and which joints
+    # Articulated fixtures' joints in full (keyed by joint name), and which joints
     # move each fixture or region (e.g. white_cabinet_1_bottom_region -> its drawer's slide).
     articulations: dict[str, Articulation] = field(default_factory=dict)
     joints_of: dict[str, tuple[str, ...]] = field(default_factory=dict)
@@ -121,7 +121,7 @@ class SceneReader:
             m.joint(j).name: int(m.jnt_qposadr[j])
             for j in range(m.njnt)
             if any(m.joint(j).name.startswith(f"{f}_") for f in env.fixtures_dict)
-            and m.jnt_type[j] in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE)
+            and int(m.jnt_type[j]) in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
         }
         self._articulated, self._joints_of = self._prepare_articulations(env)
         robot = env.robots[0]
@@ -195,7 +195,7 @@ class SceneReader:
             gmat = d.geom_xmat[g].reshape(3, 3)
             centre, half = m.geom_aabb[g, :3], m.geom_aabb[g, 3:]
             boxes.append(Box(center=d.geom_xpos[g] + gmat @ centre, xmat=gmat.copy(), half=half.copy()))
-        hinge = m.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE
+        hinge = int(m.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_HINGE)
         return Articulation(kind="hinge" if hinge else "slide", qpos=float(d.qpos[m.jnt_qposadr[j]]),
                             range=m.jnt_range[j].copy(), axis=d.xaxis[j].copy(), anchor=d.xanchor[j].copy(),
                             part=part, geoms=tuple(boxes))
