@@ -118,3 +118,9 @@ def test_demos_record_writes_lerobot_and_resumes(tmp_path):
     assert ep.agent_images.shape == (ep.length, 224, 224, 3) and ep.states.shape == (ep.length, 8)
     assert 0 < ep.critical_frames[0] < ep.critical_frames[1] < ep.length
     assert ds.episode_meta(0)["meta"]["init_index"] == 0
+
+
+def test_demos_record_refuses_bad_counts_before_any_work(tmp_path):
+    with pytest.raises(InvalidInput, match="must be in 1..50, got 51"):
+        record_demos("libero_10", tmp_path / "d", episodes_per_task=51, tasks=[5])
+    assert not (tmp_path / "d").exists()

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from seal.datasets import Episode, LeRobotWriter
+from seal.errors import InvalidInput
 from seal.episode import Recording, run_policy_episode
 from seal.policies.expert.policy import FailureKnobs, ScriptedExpert
 from seal.sim.suites import get_task, task_count
@@ -48,6 +49,11 @@ def record_demos(suite: str, out: Path, *, episodes_per_task: int, tasks: list[i
                  knobs: FailureKnobs | None = None, progress=None) -> RecordSummary:
     tasks = list(range(task_count(suite))) if tasks is None else tasks
     specs = [get_task(suite, t) for t in tasks]  # validates every id before any work
+    for spec in specs:
+        n = spec.init_states().shape[0]
+        if not 1 <= episodes_per_task <= n:
+            raise InvalidInput(f"{spec.key} has {n} init states; --episodes-per-task must be in 1..{n}, "
+                               f"got {episodes_per_task}")
     out.mkdir(parents=True, exist_ok=True)
     summary = RecordSummary()
     with LeRobotWriter(out, fps=20) as writer:
@@ -59,11 +65,6 @@ def record_demos(suite: str, out: Path, *, episodes_per_task: int, tasks: list[i
                 progress(spec, summary, advance=episodes_per_task - len(todo))
             if not todo:
                 continue
-            if episodes_per_task > spec.init_states().shape[0]:
-                from seal.errors import InvalidInput
-
-                raise InvalidInput(f"{spec.key} has {spec.init_states().shape[0]} init states; "
-                                   f"--episodes-per-task must be <= that")
             world = LiberoWorld(spec)
             policy = ScriptedExpert.for_world(world, knobs)
             try:

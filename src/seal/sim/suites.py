@@ -11,10 +11,14 @@ import functools
 import re
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from seal.errors import InvalidInput
+
+if TYPE_CHECKING:
+    from seal.sim.goals import GoalAtom
 
 # Step limits of openpi's LIBERO evaluation loop, counted after the settle steps.
 MAX_STEPS = {"libero_10": 520, "libero_90": 400}
