@@ -27,6 +27,7 @@ from seal.sim.observation import (
     quat_xyzw_to_axis_angle,
     to_policy_image,
 )
+from seal.sim import background
 from seal.sim.render import RENDER_MODES, SceneRenderer
 from seal.sim.scene import SceneReader, SceneState
 from seal.sim.snapshot import Snapshot
@@ -80,6 +81,8 @@ def _build_robosuite_env(task: TaskSpec):
     with contextlib.redirect_stdout(io.StringIO()):
         from libero.libero.envs.env_wrapper import ControlEnv
 
+    # A visual-viewpoint task puts the same table in another room (visual only; physics unchanged).
+    room = background.scene_kwargs(task.room, task.background) if task.background else {}
     env = ControlEnv(
         bddl_file_name=str(task.bddl_path),
         use_camera_obs=False,
@@ -87,10 +90,25 @@ def _build_robosuite_env(task: TaskSpec):
         ignore_done=True,  # step limits are ours (per suite), not robosuite's horizon
         horizon=10**9,
         hard_reset=False,  # we reset by restoring states; never recompile the model
+        **room,
     )
     env.seed(7)  # what openpi does; only matters for LIBERO's own placement sampling
     env.reset()
     return env.env
+
+
+def _orbit_agent_camera(env, orbit: background.CameraOrbit) -> tuple[np.ndarray, np.ndarray]:
+    """The agent camera's pose after ``orbit``, centred where it looks at the objects' height."""
+    model = env.sim.model._model
+    cam = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, AGENT_CAMERA)
+    objects = [env.sim.data.body_xpos[i][2] for name, i in env.obj_body_id.items() if name in env.objects_dict]
+    target_z = float(np.median(objects)) if objects else float(env.workspace_offset[2])
+    return background.orbit_pose(model.cam_pos[cam].copy(), model.cam_quat[cam].copy(), orbit, target_z)
+
+
+def _set_camera(model: mujoco.MjModel, name: str, pose: tuple[np.ndarray, np.ndarray]) -> None:
+    cam = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, name)
+    model.cam_pos[cam], model.cam_quat[cam] = pose
 
 
 class LiberoWorld:
@@ -105,6 +123,10 @@ class LiberoWorld:
         self.task = task
         self.render_mode = render_mode
         self._env = _build_robosuite_env(task)
+        # Fixed before any state is loaded; the render model (fast mode) gets the same pose.
+        self._camera_pose = _orbit_agent_camera(self._env, task.camera) if task.camera is not None else None
+        if self._camera_pose is not None:
+            _set_camera(self.model, AGENT_CAMERA, self._camera_pose)
         self.physics = physics
         if physics is not None:
             physics.apply(self.model)
@@ -259,6 +281,8 @@ class LiberoWorld:
                 from seal.sim.fast_assets import build_fast_model
 
                 render_model = build_fast_model(self._env.model.get_xml())
+                if self._camera_pose is not None:
+                    _set_camera(render_model, AGENT_CAMERA, self._camera_pose)
             self._renderer = SceneRenderer(render_model, size)
         return self._renderer
 
@@ -289,6 +313,23 @@ class LiberoWorld:
         if name not in env.obj_body_id:
             raise InvalidInput(f"unknown object {name!r} in {self.task.key}; valid: {', '.join(sorted(env.obj_body_id))}")
         return np.array(env.sim.data.body_xpos[env.obj_body_id[name]])
+
+    @property
+    def scene_objects(self) -> list[str]:
+        """The problem's objects and fixtures (no regions, not the table they stand on)."""
+        env = self._env
+        fixtures = [n for n, f in env.fixtures_dict.items() if not f.category_name.endswith("_table")]
+        return sorted([*env.objects_dict, *fixtures])
+
+    def objects_out_of_view(self, camera: str = AGENT_CAMERA, margin: float = 0.05) -> dict[str, tuple[float, float]]:
+        """Scene objects whose body origin falls outside ``camera``'s frame (shrunk by ``margin``
+        of its half-width on each side), with their normalised image coordinates."""
+        names = self.scene_objects
+        points = np.array([self.object_position(n) for n in names])
+        xy = background.project(self.model, self.data, camera, points)
+        limit = 1.0 - margin
+        return {n: (float(x), float(y)) for n, (x, y) in zip(names, xy)
+                if not (np.isfinite(x) and np.isfinite(y) and abs(x) <= limit and abs(y) <= limit)}
 
     @property
     def objects(self) -> list[str]:
