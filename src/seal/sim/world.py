@@ -130,7 +130,7 @@ class LiberoWorld:
         self.physics = physics
         if physics is not None:
             physics.apply(self.model)
-        self._init_states = task.init_states()
+        self._init_states: np.ndarray | None = None  # loaded on first use (generators have none yet)
         self._renderer: SceneRenderer | None = None
         self._scene: SceneReader | None = None  # built on first privileged read
         self._steps = 0
@@ -150,8 +150,14 @@ class LiberoWorld:
         return self.task.instruction
 
     @property
+    def init_states(self) -> np.ndarray:
+        if self._init_states is None:
+            self._init_states = self.task.init_states()
+        return self._init_states
+
+    @property
     def num_init_states(self) -> int:
-        return len(self._init_states)
+        return len(self.init_states)
 
     @property
     def steps(self) -> int:
@@ -163,10 +169,19 @@ class LiberoWorld:
         n = self.num_init_states
         if isinstance(init_index, bool) or not isinstance(init_index, (int, np.integer)) or not 0 <= init_index < n:
             raise InvalidInput(f"init state index {init_index!r} out of range for {self.task.key}; valid: 0..{n - 1}")
+        self.reset_to_state(self.init_states[init_index], settle=settle)
+
+    def reset_to_state(self, state: np.ndarray, *, settle: bool = True) -> None:
+        """Like `reset`, from a flattened MuJoCo state (time, qpos, qvel) of this task's model."""
+        state = np.asarray(state, dtype=np.float64)
+        expected = 1 + self.model.nq + self.model.nv
+        if state.shape != (expected,):
+            raise InvalidInput(f"init state of {self.task.key} must have shape ({expected},) = (1 + nq + nv,), "
+                               f"got {state.shape}")
         env = self._env
         # A fresh MjData's state: no warm start, ctrl or forces left over from earlier episodes.
         mujoco.mj_resetData(self.model, self.data)
-        env.sim.set_state_from_flattened(self._init_states[init_index])
+        env.sim.set_state_from_flattened(state)
         env.robots[0].gripper.current_action = np.zeros(env.robots[0].gripper.dof)
         env.timestep, env.cur_time, env.done = 0, 0.0, False
         self._after_state_change()

@@ -1,0 +1,266 @@
+"""Create the derived suites' data: new BDDL problems (text) and init states (simulator).
+
+BDDL problems are built from LIBERO-10's by the text builders of ``seal.sim.variants``.
+Init states are drawn the way LIBERO drew its own: the problem's placement sampler puts every
+object in its init region (``env.reset()``), and the flattened MuJoCo state is kept. Each draw
+is seeded (LIBERO's samplers use NumPy's global generator, which we seed and restore around
+the draw), so a stored state can be re-drawn bit for bit from its seed. A draw is kept only
+if the scene is at rest and sane after the settle steps; see `check_state`.
+
+Stored file: ``seal/data/init_states/<suite>/<problem>.npz`` with ``states`` (n, 1+nq+nv),
+``seeds`` (n,) and ``bddl_sha256`` of the problem file the states belong to.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import os
+import tempfile
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from seal.errors import InvalidInput, SimulationError
+from seal.sim.suites import (
+    DERIVED_SUITES,
+    TaskSpec,
+    _libero_task,
+    get_task,
+    instructions,
+    shipped_bddl_path,
+    task_count,
+)
+from seal.sim.variants import COMPOSITION, VISUAL_SCENE, ProVariant, Replace, compose, replace_object
+
+N_INIT_STATES = 50
+# No-op steps after the settle steps; the second half must be still. LIBERO's own starts are not
+# all at rest after the settle steps: in the LIVING_ROOM_SCENE2 tasks the ketchup spawns
+# overlapping the table and is thrown ~60 cm up, landing ~0.6 s later - for every init state,
+# official or ours, since the spawn height is LIBERO's. We accept that, as LIBERO-10 does.
+REST_STEPS = 40
+MAX_SLIDE = 0.02  # metres an object may move sideways while settling
+MAX_DROP = 0.10  # metres an object may sink while settling (LIBERO spawns some up to ~7 cm above the table)
+MAX_MOTION = 0.005  # metres an object may still move during the rest steps
+MAX_DRAWS = 400  # give up on a task if this many draws do not yield the states asked for
+
+
+# ---- BDDL ------------------------------------------------------------------------------------
+def bddl_texts(suite: str) -> dict[Path, str]:
+    """The BDDL problems a derived suite ships, path -> text (empty for suites that ship none)."""
+    out: dict[Path, str] = {}
+    if suite == "visual_scene":
+        for task_id, edit in VISUAL_SCENE.items():
+            if isinstance(edit, Replace):
+                base = _libero_task("libero_10", task_id)
+                out[shipped_bddl_path(suite, base.name)] = replace_object(base.bddl_path.read_text(), edit)
+    elif suite == "composition":
+        for task_id, task in enumerate(COMPOSITION):
+            base = _libero_task("libero_10", task.base_task)
+            spec = get_task(suite, task_id)
+            out[spec.bddl_path] = compose(base.bddl_path.read_text(), task, instructions()[(suite, task_id)])
+    return out
+
+
+def write_bddl(suite: str) -> list[Path]:
+    """Write the suite's BDDL problems; returns the files whose content changed."""
+    changed = []
+    for path, text in bddl_texts(suite).items():
+        if not path.is_file() or path.read_text() != text:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_text(text)
+            changed.append(path)
+    return changed
+
+
+def needs_generated_states(spec: TaskSpec) -> bool:
+    """Whether the task's init states are ours to generate (a new or changed object set)."""
+    if spec.suite == "composition":
+        return True
+    if spec.suite == "visual_scene":
+        edit = VISUAL_SCENE[spec.task_id]
+        return not (isinstance(edit, ProVariant) and edit.shipped_init_states)
+    return False
+
+
+def generated_tasks(suite: str) -> list[TaskSpec]:
+    if suite not in DERIVED_SUITES:
+        raise InvalidInput(f"suite {suite!r} has no generated data; suites that may: {', '.join(DERIVED_SUITES)}")
+    return [s for s in (get_task(suite, i) for i in range(task_count(suite))) if needs_generated_states(s)]
+
+
+# ---- init states -----------------------------------------------------------------------------
+def task_seed(spec: TaskSpec) -> int:
+    """First draw seed of a task: stable across runs and machines, distinct per task."""
+    return zlib.crc32(spec.key.encode()) * 1000
+
+
+@contextlib.contextmanager
+def _numpy_global_seed(seed: int):
+    # LIBERO's region samplers draw from np.random directly; seed it for this draw only and
+    # give the caller's generator state back afterwards.
+    saved = np.random.get_state()
+    np.random.seed(seed % 2**32)
+    try:
+        yield
+    finally:
+        np.random.set_state(saved)
+
+
+def draw_state(world, seed: int) -> np.ndarray | None:
+    """LIBERO's placement of every object for ``seed``, as a flattened MuJoCo state (None when
+    the sampler finds no collision-free placement)."""
+    from robosuite.utils.errors import RandomizationError
+
+    env, model = world._env, world.model
+    # The sampler also moves fixtures (cabinets, racks) - in the *model*, which no state vector
+    # carries. Every world keeps the fixture poses of its build, so put them back after the draw.
+    body_pos, body_quat = model.body_pos.copy(), model.body_quat.copy()
+    try:
+        with _numpy_global_seed(seed):
+            env.reset()
+        return np.array(env.sim.get_state().flatten(), dtype=np.float64)
+    except RandomizationError:
+        return None
+    finally:
+        model.body_pos[:], model.body_quat[:] = body_pos, body_quat
+
+
+def check_state(world, state: np.ndarray) -> str:
+    """'' if ``state`` is a usable start, else why not.
+
+    Usable: the physics stays stable; from the spawn pose to the end of the settle steps and
+    `REST_STEPS` more, no object slid more than `MAX_SLIDE` or sank more than `MAX_DROP`
+    (nothing toppled off, fell off or was pushed out of an overlap; LIBERO spawns some objects
+    a few cm above the table, so a short drop is normal), and nothing still moves during the
+    second half of the rest steps; the BDDL's unary init facts hold (a drawer left open, a stove on); and the task
+    is not already done.
+    """
+    from seal.sim.world import SETTLE_ACTION
+
+    try:
+        world.reset_to_state(state, settle=False)
+        names = world.scene_objects
+        spawn = np.array([world.object_position(n) for n in names])
+        world.reset_to_state(state, settle=True)
+        for _ in range(REST_STEPS // 2):
+            world._physics_step(SETTLE_ACTION)
+        settled = np.array([world.object_position(n) for n in names])
+        for _ in range(REST_STEPS - REST_STEPS // 2):
+            world._physics_step(SETTLE_ACTION)
+    except SimulationError as exc:
+        return f"unstable: {exc}"
+    rest = np.array([world.object_position(n) for n in names])
+    slide = np.linalg.norm(rest[:, :2] - spawn[:, :2], axis=1)
+    drop = spawn[:, 2] - rest[:, 2]
+    moving = np.linalg.norm(rest - settled, axis=1)
+    for n, s, d, m in zip(names, slide, drop, moving):
+        if s > MAX_SLIDE:
+            return f"{n} slid {s * 100:.1f} cm while settling"
+        if d > MAX_DROP:
+            return f"{n} sank {d * 100:.1f} cm while settling"
+        if m > MAX_MOTION:
+            return f"{n} still moves after the settle steps ({m * 1000:.0f} mm)"
+    for atom in _unary_init_facts(world.task):
+        if not world.check(atom):
+            return f"init fact {atom} does not hold"
+    if world.success():
+        return "task already done"
+    return ""
+
+
+def _unary_init_facts(spec: TaskSpec) -> list[str]:
+    import re
+
+    text = spec.bddl_path.read_text()
+    init = text[text.index("(:init") : text.index("(:goal")]
+    return [f"{p}({a})" for p, a in re.findall(r"\((Open|Close|Turnon|Turnoff)\s+(\w+)\)", init, flags=re.I)]
+
+
+@dataclass
+class Generated:
+    states: np.ndarray
+    seeds: np.ndarray
+    rejected: dict[int, str] = field(default_factory=dict)  # seed -> reason
+
+
+def generate_init_states(spec: TaskSpec, n: int = N_INIT_STATES, *, world=None, progress=None) -> Generated:
+    """Draw seeds from `task_seed` upwards until ``n`` usable states are found."""
+    from seal.sim.world import LiberoWorld
+
+    own = world is None
+    world = LiberoWorld(spec) if own else world
+    try:
+        states, seeds, rejected = [], [], {}
+        seed = task_seed(spec)
+        while len(states) < n:
+            if len(states) + len(rejected) >= MAX_DRAWS:
+                raise SimulationError(f"{spec.key}: only {len(states)} usable init states in {MAX_DRAWS} draws; "
+                                      f"last rejection: {list(rejected.values())[-1]}")
+            state = draw_state(world, seed)
+            reason = "no collision-free placement" if state is None else check_state(world, state)
+            if reason:
+                rejected[seed] = reason
+            else:
+                states.append(state)
+                seeds.append(seed)
+                if progress is not None:
+                    progress(len(states), n)
+            seed += 1
+        return Generated(np.stack(states), np.array(seeds, dtype=np.int64), rejected)
+    finally:
+        if own:
+            world.close()
+
+
+def bddl_digest(spec: TaskSpec) -> str:
+    return hashlib.sha256(spec.bddl_path.read_bytes()).hexdigest()
+
+
+def save_init_states(spec: TaskSpec, generated: Generated) -> Path:
+    path = spec.init_states_path
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz")  # write aside, then rename: never half a file
+    with os.fdopen(fd, "wb") as f:
+        np.savez_compressed(f, states=generated.states, seeds=generated.seeds, bddl_sha256=np.array(bddl_digest(spec)))
+    os.replace(tmp, path)
+    return path
+
+
+def stored_seeds(spec: TaskSpec) -> tuple[np.ndarray, str]:
+    """The seeds and BDDL digest stored with a task's generated init states."""
+    with np.load(spec.init_states_path, allow_pickle=False) as f:
+        return f["seeds"], str(f["bddl_sha256"])
+
+
+def is_current(spec: TaskSpec) -> bool:
+    """Stored init states exist and belong to the task's current BDDL file."""
+    if not spec.init_states_path.is_file():
+        return False
+    return stored_seeds(spec)[1] == bddl_digest(spec)
+
+
+def generate_suite(suite: str, tasks: list[int] | None = None, *, n: int = N_INIT_STATES, force: bool = False,
+                   progress=None) -> dict[str, str]:
+    """Write the suite's BDDL problems, then the init states of every task that needs generated
+    ones and lacks current ones (or all, with ``force``). Each task's file is written when done,
+    so an interrupted run resumes where it stopped. Returns task key -> what happened."""
+    specs = generated_tasks(suite)
+    if tasks is not None:
+        for t in tasks:
+            get_task(suite, t)  # validates the id
+        specs = [s for s in specs if s.task_id in tasks]
+    write_bddl(suite)
+    out: dict[str, str] = {}
+    for spec in specs:
+        if not force and is_current(spec):
+            out[spec.key] = "kept"
+            continue
+        if progress is not None:
+            progress(spec, 0, n)
+        g = generate_init_states(spec, n, progress=(lambda i, total, s=spec: progress(s, i, total)) if progress else None)
+        save_init_states(spec, g)
+        out[spec.key] = f"generated {len(g.states)} (rejected {len(g.rejected)} draws)"
+    return out
