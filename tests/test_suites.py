@@ -65,6 +65,9 @@ def test_every_task_has_parsing_bddl_and_a_plan():
             for atom in problem["goal_state"]:
                 for arg in atom[1:]:
                     assert arg in declared or arg.endswith("_region"), (spec.key, arg)
+            for atom in problem["initial_state"]:  # every placement names a region that exists
+                if atom[0].lower() == "on" and atom[2].endswith("_init_region"):
+                    assert atom[1] in declared and atom[2] in problem["regions"], (spec.key, atom)
             plans = plan_task(spec)  # the scripted expert can decompose it
             assert plans and all(p.text for p in plans), spec.key
             assert spec.change or suite == "libero_10", spec.key

@@ -152,6 +152,9 @@ def check_state(world, state: np.ndarray) -> str:
             world._physics_step(SETTLE_ACTION)
     except SimulationError as exc:
         return f"unstable: {exc}"
+    unplaced = [n for n, p in zip(names, spawn) if np.linalg.norm(p) < 1e-6]
+    if unplaced:  # LIBERO leaves an object at the origin when its init region does not exist
+        return f"not placed by the sampler: {', '.join(unplaced)}"
     rest = np.array([world.object_position(n) for n in names])
     slide = np.linalg.norm(rest[:, :2] - spawn[:, :2], axis=1)
     drop = spawn[:, 2] - rest[:, 2]

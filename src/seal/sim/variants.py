@@ -70,10 +70,12 @@ def replace_object(bddl: str, edit: Replace) -> str:
     """
     if re.search(rf"(?<![a-z_]){edit.new}_1\b", bddl):
         raise InvalidInput(f"cannot replace {edit.old} by {edit.new}: the scene already has a {edit.new}")
-    pattern = rf"(?<![a-z_]){edit.old}(?=_\d+\b|_init_region\b|\s|\))"
-    out, n = re.subn(pattern, edit.new, bddl)
-    if n == 0:
-        raise InvalidInput(f"no {edit.old} in this BDDL problem to replace")
+    # Instances and the type: "old_1", "- old". The init region: defined as "(old_init_region",
+    # referred to with its table's name in front ("living_room_table_old_init_region").
+    out, n = re.subn(rf"(?<![a-z_]){edit.old}(?=_\d+\b|\s|\))", edit.new, bddl)
+    out, m = re.subn(rf"(?:(?<=\()|(?<=_table_)){edit.old}(?=_init_region\b)", edit.new, out)
+    if n == 0 or m == 0:
+        raise InvalidInput(f"no {edit.old} (instance and init region) in this BDDL problem to replace")
     goal = out[out.index("(:goal"):]
     if re.search(rf"\b{edit.new}_\d+\b", goal):
         raise InvalidInput(f"{edit.old} is a target of the task; visual_scene only replaces non-target objects")
