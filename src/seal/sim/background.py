@@ -140,6 +140,7 @@ def scene_kwargs(own_room: str, donor_room: str) -> dict:
         fd, tmp = tempfile.mkstemp(dir=out, suffix=".xml")
         with os.fdopen(fd, "w") as f:
             f.write(text)
+        os.chmod(tmp, 0o644)
         os.replace(tmp, path)
     donor = ROOMS[donor_room]
     return {"scene_xml": str(path),

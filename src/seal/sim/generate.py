@@ -228,6 +228,7 @@ def save_init_states(spec: TaskSpec, generated: Generated) -> Path:
     fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz")  # write aside, then rename: never half a file
     with os.fdopen(fd, "wb") as f:
         np.savez_compressed(f, states=generated.states, seeds=generated.seeds, bddl_sha256=np.array(bddl_digest(spec)))
+    os.chmod(tmp, 0o644)  # package data: mkstemp's owner-only mode would hide it from other users
     os.replace(tmp, path)
     return path
 
