@@ -146,7 +146,10 @@ def test_first_frame_renders_in_each_suite(world, composition_world):
             assert obs.prompt == w.task.instruction
             frames[suite] = obs.agent.astype(float)
             if suite == "visual_viewpoint":
-                assert w.objects_out_of_view() == {}  # the moved camera still sees every object
+                # The moved camera still sees every object where it starts (after the settle steps
+                # LIBERO's ketchup is still in the air above this table; see docs/suites.md).
+                w.reset(0, settle=False)
+                assert w.objects_out_of_view() == {}
                 assert w.task.camera is not None and w.task.background == "kitchen"
             if suite == "visual_scene":
                 assert "ketchup_1" in w.objects and "wine_bottle_1" not in w.objects
