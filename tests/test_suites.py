@@ -168,3 +168,28 @@ def test_every_task_of_every_derived_suite_checks_out(suite):
 
     rows = [check_task(spec, inits=5) for spec in list_tasks(suite)]
     assert [r["task"] for r in rows if not r["ok"]] == [], [r["problems"] for r in rows if not r["ok"]]
+
+
+# Composition tasks the clean scripted expert does not solve yet (the expert is not this
+# module's; see docs/suites.md): after a tall first object (carton, bottle) stands in the
+# basket, the second placement aims at the basket centre it occupies and hovers there; the
+# wine bottle does not go into the drawer, like LIBERO-10 task 3's bowl.
+EXPERT_FAILS = {2: "tall orange juice blocks the basket", 3: "tall milk blocks the basket",
+                4: "tall orange juice blocks the basket", 7: "tall ketchup blocks the basket",
+                9: "wine bottle into the bottom drawer"}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("task_id", [
+    pytest.param(t, marks=pytest.mark.xfail(reason=EXPERT_FAILS[t], strict=False)) if t in EXPERT_FAILS else t
+    for t in range(len(COMPOSITION))])
+def test_clean_expert_solves_composition_task(task_id):
+    from seal.episode import run_policy_episode
+    from seal.policies.expert.policy import FailureKnobs, ScriptedExpert
+
+    w = LiberoWorld(get_task("composition", task_id))
+    try:
+        result = run_policy_episode(w, ScriptedExpert.for_world(w, FailureKnobs.named("clean")), init_index=0)
+    finally:
+        w.close()
+    assert result.success, result.goal_status
