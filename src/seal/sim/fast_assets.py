@@ -208,6 +208,8 @@ def _small_texture(src: Path, max_side: int, out: Path) -> Path:
     if path.is_file():
         return path
     with Image.open(src) as img:
+        if img.mode not in ("RGB", "RGBA", "L", "LA"):  # e.g. the kitchen fridge's palette PNG: reduce() needs pixels
+            img = img.convert("RGBA" if "transparency" in img.info else "RGB")
         # Power-of-two factors keep cube-map faces (e.g. 512x3072 = 1x6 squares) divisible.
         factor = 1
         while max(img.size) // factor > max_side:
