@@ -80,6 +80,38 @@ def _cmd_demos(args) -> int:
     return 0
 
 
+def _cmd_eval(args) -> int:
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from seal.eval.execute import RunOptions
+    from seal.eval.runner import run_eval
+    from seal.eval.trials import parse_methods
+
+    methods = parse_methods(args.methods, k=args.k, rounds=args.rounds, verifier=args.verifier, model=args.model,
+                            knobs=args.knobs)
+    suites = [s.strip() for s in args.suite.split(",") if s.strip()]
+    tasks = None if not args.tasks else [int(t) for t in args.tasks.split(",")]
+    out = args.out or str(Path(args.db).with_suffix("")) + "_runs"
+    options = RunOptions(out_dir=out, video=args.video, grids=not args.no_grids, pool_workers=args.pool_workers,
+                         max_steps=args.max_steps)
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
+    tally: dict = {}
+    with Progress(*columns) as bar:
+        job = bar.add_task("eval", total=None)
+
+        def on_row(row, ran, total):
+            ok, n = tally.get(row.method, (0, 0))
+            tally[row.method] = (ok + row.success, n + 1)
+            rates = "  ".join(f"{m} {a}/{b}" for m, (a, b) in tally.items())
+            flag = " [red]error[/red]" if row.status == "error" else ""
+            bar.update(job, total=total, completed=ran, description=f"{row.suite}/{row.task}  {rates}{flag}")
+
+        summary = run_eval(args.db, methods, suites, tasks, args.trials, options=options, backend=args.backend,
+                           workers=args.workers, address=args.address, on_row=on_row)
+    print(json.dumps(summary.__dict__))
+    return 0
+
+
 def _cmd_bench(args) -> int:
     from seal.benchmarks import run_benchmark
 
@@ -133,6 +165,28 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("--knobs", default="clean", choices=["clean", "misaligned"])
     rec.add_argument("--out", required=True)
     rec.set_defaults(func=_cmd_demos)
+
+    ev = sub.add_parser("eval", help="methods x suites x tasks x trials into a SQLite results store (resumable)")
+    ev.add_argument("--suite", default="libero_10", help="comma-separated suites")
+    ev.add_argument("--methods", default="base,seal",
+                    help="comma-separated methods, each optionally with settings: seal:k=5:rounds=1")
+    ev.add_argument("--tasks", default="", help="comma-separated task ids (default: all)")
+    ev.add_argument("--trials", type=int, default=50, help="trials per task (init state = trial mod #inits)")
+    ev.add_argument("--db", required=True, help="results database (created if missing, resumed if present)")
+    ev.add_argument("--out", default=None, help="traces/videos directory (default: next to the database)")
+    ev.add_argument("--k", type=int, default=None, help="default K for the methods (10)")
+    ev.add_argument("--rounds", type=int, default=None)
+    ev.add_argument("--verifier", default=None, help="oracle | openai | gemini (default oracle)")
+    ev.add_argument("--model", default=None)
+    ev.add_argument("--knobs", default=None, help="scripted expert setting: clean | misaligned (default)")
+    ev.add_argument("--backend", default="local", help="local | ray")
+    ev.add_argument("--address", default=None, help="ray: cluster address (default: start a local one)")
+    ev.add_argument("--workers", type=int, default=1, help="trials run in parallel")
+    ev.add_argument("--pool-workers", type=int, default=1, help="simulator processes per trial worker")
+    ev.add_argument("--video", default="failures", choices=["none", "failures", "all"])
+    ev.add_argument("--no-grids", action="store_true")
+    ev.add_argument("--max-steps", type=int, default=None, help="cap episode length (default: the suite's)")
+    ev.set_defaults(func=_cmd_eval)
 
     bench = sub.add_parser("bench", help="benchmarks; each prints one JSON object")
     bench.add_argument("what", choices=["sim", "expert", "steer", "runtime"])
