@@ -189,7 +189,7 @@ def build_parser() -> argparse.ArgumentParser:
     ev.set_defaults(func=_cmd_eval)
 
     bench = sub.add_parser("bench", help="benchmarks; each prints one JSON object")
-    bench.add_argument("what", choices=["sim", "expert", "steer", "runtime"])
+    bench.add_argument("what", choices=["sim", "expert", "steer", "runtime", "eval"])
     bench.add_argument("--ks", default="", help="runtime: comma-separated K values (default 1,2,4,8,10)")
     bench.add_argument("--latency", type=float, default=2.0, help="runtime: fixed verifier latency in seconds")
     bench.add_argument("--tasks", default="", help="comma-separated task ids (expert: all; steer: 0,1,7; runtime: 5)")

@@ -115,6 +115,7 @@ class TrialRunner:
                 eval_world.close()
         row.success, row.sim_error, row.steps = result.success, result.sim_error, result.steps
         row.step_s = round(result.timing.get("predict_s", 0.0), 3)
+        row.policy_s = round(result.timing.get("sampling_s", 0.0), 3)
         row.verify_wait_s = round(result.timing.get("verify_wait_s", 0.0), 3)
         row.verifier_calls, row.rounds, row.fallbacks = result.verifier_calls, result.rounds, result.fallbacks
         row.input_tokens, row.output_tokens = result.input_tokens, result.output_tokens

@@ -42,6 +42,7 @@ CREATE TABLE trials (
     sim_error INTEGER NOT NULL,
     wall_s REAL NOT NULL,
     step_s REAL NOT NULL,
+    policy_s REAL NOT NULL,
     verify_wait_s REAL NOT NULL,
     verifier_calls INTEGER NOT NULL,
     input_tokens INTEGER NOT NULL,
@@ -79,6 +80,7 @@ class TrialRow:
     sim_error: bool = False
     wall_s: float = 0.0
     step_s: float = 0.0  # time in simulator stepping (prediction), from the steerer's timing
+    policy_s: float = 0.0  # time in the policy (sampling actions and reasoning)
     verify_wait_s: float = 0.0  # time spent waiting for verdicts
     verifier_calls: int = 0
     input_tokens: int = 0
