@@ -93,8 +93,8 @@ def _markdown(data: ReportData, sections, plot_paths: list[Path], out: Path) -> 
     from seal.report.tables import to_markdown
 
     lines = ["# SEAL evaluation report", "",
-             f"Database `{data.db_path}`: {len(data.rows)} trials, {len(data.methods)} method configurations, "
-             f"suites {', '.join(data.suites)}, {len(data.errors())} error trial(s).", ""]
+             (f"Database `{data.db_path}`: {len(data.rows)} trials, {len(data.methods)} method configurations, "
+             f"suites {', '.join(data.suites)}, {len(data.errors())} error trial(s)."), ""]
     for title, tabs in sections:
         lines += [f"## {title}", ""] + [to_markdown(t) for t in tabs]
     lines += ["## Plots", ""] + [f"![{p.stem}]({p.relative_to(out).as_posix()})" for p in plot_paths] + [""]

@@ -16,8 +16,8 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
-from seal.eval.store import ResultStore, TrialRow
 from seal.errors import InvalidInput
+from seal.eval.store import ResultStore, TrialRow
 from seal.report.stats import wilson
 
 SUITE_ORDER = ("libero_10", "lang_rephrase", "lang_object_property", "visual_scene", "visual_viewpoint",

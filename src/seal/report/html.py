@@ -112,10 +112,10 @@ def write_index(data: ReportData, out_dir: Path, *, sections: list[tuple[str, li
                 plots: list[Path], episode_pages: dict[str, Path], markdown: Path, csvs: list[Path]) -> Path:
     out_dir = Path(out_dir)
     n_err = len(data.errors())
-    parts = [f"<h1>SEAL evaluation report</h1>",
-             f'<p class="note">Database <code>{esc(data.db_path)}</code> · {len(data.rows)} trials · '
+    parts = ["<h1>SEAL evaluation report</h1>",
+             (f'<p class="note">Database <code>{esc(data.db_path)}</code> · {len(data.rows)} trials · '
              f"{len(data.methods)} method configurations · suites {esc(', '.join(data.suites))} · "
-             f"{n_err} error trial(s) · generated {esc(time.strftime('%Y-%m-%d %H:%M:%S'))}</p>",
+             f"{n_err} error trial(s) · generated {esc(time.strftime('%Y-%m-%d %H:%M:%S'))}</p>"),
              _file_links(out_dir, markdown, csvs), _methods_html(data)]
     if plots:
         parts.append('<h2 id="plots">Plots</h2>')
@@ -175,7 +175,8 @@ def _episode_index(data: ReportData, suite: str, pages: dict[str, Path], out_dir
                 inner = f'<a href="{quote(page.relative_to(out_dir).as_posix())}">{inner} {r.steps} steps</a>'
             cells.append(f'<td class="ep">{inner}</td>')
         body.append(f"<tr><td>{task}</td><td>{trial}</td>{''.join(cells)}</tr>")
-    return (f"<details open><summary>{esc(suite)} ({len(trials)} task-trials)</summary>"
+    fold = " open" if len(trials) <= 200 else ""  # long indexes start folded
+    return (f"<details{fold}><summary>{esc(suite)} ({len(trials)} task-trials)</summary>"
             f'<table><thead><tr><th>task</th><th>trial</th>{head}</tr></thead><tbody>{"".join(body)}</tbody>'
             "</table></details>")
 
@@ -192,10 +193,10 @@ def write_episode(data: ReportData, row: TrialRow, out_dir: Path, media: MediaPl
     parts = ['<p><a href="../index.html#episodes">← report</a></p>',
              f"<h1>{esc(label)} · {esc(row.suite)} task {row.task} · trial {row.trial}</h1>",
              f"<p><b>Instruction:</b> {esc(data.instruction(row.suite, row.task))}</p>",
-             f'<p>Result: <span class="{result[1]}">{result[0]}</span> · {row.steps} executed steps · '
+             (f'<p>Result: <span class="{result[1]}">{result[0]}</span> · {row.steps} executed steps · '
              f"{row.wall_s:.1f} s wall · {row.verifier_calls} verifier calls · {row.input_tokens}+"
              f"{row.output_tokens} tokens · ${row.cost_usd:.4f} · init state {row.init_index} · seed {row.seed}"
-             f"{' · simulator error' if row.sim_error else ''} · worker {esc(row.worker)}</p>"]
+             f"{' · simulator error' if row.sim_error else ''} · worker {esc(row.worker)}</p>")]
     if row.status == "error":
         parts.append(f"<h2>Traceback</h2><pre>{esc(row.error)}</pre>")
     video_src = data.resolve(row.video_path)

@@ -31,7 +31,7 @@ class PaperResults:
     rates: dict[tuple[str, str, int, str], float]
 
     @classmethod
-    def load(cls) -> "PaperResults":
+    def load(cls) -> PaperResults:
         text = (resources.files("seal") / "data" / "paper_results.csv").read_text()
         rates = {}
         for rec in csv.DictReader(text.splitlines()):

@@ -31,7 +31,7 @@ def _errorbars(cells: list[Cell]) -> tuple[list[float], list[list[float]]]:
 
 def success_plot(data: ReportData, tables: list[SuccessTable], path: Path) -> Path:
     """Grouped bars: pooled success per suite (groups) and method (bars), Wilson 95% error bars;
-    the paper's average for the matching method as a hollow diamond on the bar."""
+    the paper's average for the matching method as a white diamond on the bar."""
     methods = data.methods
     fig = Figure(figsize=(max(6.0, 1.2 * len(tables) * max(1, len(methods)) * 0.6 + 2), 4.2), dpi=110)
     FigureCanvasAgg(fig)
@@ -50,12 +50,13 @@ def success_plot(data: ReportData, tables: list[SuccessTable], path: Path) -> Pa
                 paper_x.append(x)
                 paper_y.append(st.paper["average"][st.paper_methods.index(pm)])
         heights, err = _errorbars(cells)
-        bars = ax.bar(xs, heights, width * 0.92, yerr=err, capsize=3, label=m.label)
+        ax.bar(xs, heights, width * 0.92, yerr=err, capsize=3, label=m.label)
         if paper_x:
-            ax.scatter(paper_x, paper_y, marker="D", s=28, facecolors="none",
-                       edgecolors=bars.patches[0].get_facecolor(), linewidths=1.5, zorder=3)
+            # White with a black edge: visible both above a bar and inside it.
+            ax.scatter(paper_x, paper_y, marker="D", s=30, facecolors="white", edgecolors="black",
+                       linewidths=1.2, zorder=3)
     if any(st.paper_methods for st in tables):
-        ax.scatter([], [], marker="D", facecolors="none", edgecolors="gray", label="paper (same method)")
+        ax.scatter([], [], marker="D", facecolors="white", edgecolors="black", label="paper (same method)")
     ax.set_xticks(range(len(tables)), [st.suite for st in tables], rotation=15)
     ax.set_ylim(0, 105)
     ax.set_ylabel("success (%)")

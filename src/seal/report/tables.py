@@ -121,8 +121,8 @@ def success_display(st: SuccessTable) -> Table:
         row += ["–" if v is None else f"{v:.1f}" for v in st.paper[key]]
         rows.append(row)
         bold |= {(i, 2 + j) for j in st.best(key)}
-    notes = [f"Success in percent with a Wilson 95% interval; {usual} trials per cell unless marked "
-             "(n=...). Error trials count as failures (marked err). Average = all trials of the suite pooled."]
+    notes = [(f"Success in percent with a Wilson 95% interval; {usual} trials per cell unless marked "
+             "(n=...). Error trials count as failures (marked err). Average = all trials of the suite pooled.")]
     if st.paper_methods:
         notes.append(f"Paper columns: {TABLES.get(st.suite, 'the paper')}, trained on {st.training}; "
                      "their average is the mean of the paper's per-task rows for the tasks shown.")
@@ -209,9 +209,9 @@ def paired_display(rows: list[PairedRow]) -> Table:
                      f"[{100 * d.ci[0]:+.1f}, {100 * d.ci[1]:+.1f}]", f"{d.p_value:.3g}"])
         if d.ci[0] > 0 or d.ci[1] < 0:
             bold.add((i, 6))
-    notes = ["Paired on (suite, task, trial): the same init state and seed for both methods. "
+    notes = [("Paired on (suite, task, trial): the same init state and seed for both methods. "
              "CI: Newcombe's hybrid score interval for paired proportions; p: exact McNemar test on the "
-             "trials where exactly one method succeeded. Bold: the interval excludes 0."]
+             "trials where exactly one method succeeded. Bold: the interval excludes 0.")]
     return Table("Paired differences (A − B, percentage points)", headers, body, bold, notes, left=3)
 
 
@@ -266,9 +266,9 @@ def runtime_display(rows: list[RuntimeRow]) -> Table:
              f"{r.per_trial(r.verify_wait_s):.2f}", f"{r.per_trial(r.verifier_calls):.1f}",
              f"{r.per_trial(r.input_tokens):.0f}", f"{r.per_trial(r.output_tokens):.0f}",
              f"{r.per_trial(r.cost_usd):.4f}", f"{r.cost_usd:.4f}"] for r in rows]
-    notes = ["All trials of a configuration, error trials included (they cost time too). Per executed "
+    notes = [("All trials of a configuration, error trials included (they cost time too). Per executed "
              "step = total wall time / total executed env steps. sim = time stepping the simulator for "
-             "candidates; verify wait = time blocked on verdicts."]
+             "candidates; verify wait = time blocked on verdicts.")]
     return Table("Runtime per method configuration", headers, body, set(), notes, left=1)
 
 
