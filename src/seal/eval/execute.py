@@ -32,6 +32,7 @@ class RunOptions:
     grids: bool = True
     pool_workers: int = 1  # simulator processes per trial worker
     max_steps: int | None = None  # cap (tests); None = the suite's limit
+    pool_k: int = 1  # slots per env pool: the largest K of the run, so one pool serves every method
 
 
 def trial_dir(out_dir: str | Path, spec: TrialSpec) -> Path:
@@ -80,7 +81,8 @@ class TrialRunner:
             self.close()
         if self._pool is None:
             task = get_task(spec.suite, spec.task)
-            self._pool = EnvPool(task, k=max(k, 1), workers=min(self.options.pool_workers, k),
+            k = max(k, self.options.pool_k)
+            self._pool = EnvPool(task, k=k, workers=min(self.options.pool_workers, k),
                                  render_mode=spec.method.render)
             self._pool_key = key
         return self._pool

@@ -8,7 +8,7 @@ one as trials finish, so Ctrl-C or a crash loses only the trials in flight.
 from __future__ import annotations
 
 from collections import defaultdict
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 from seal.eval.backends import make_backend
@@ -44,6 +44,7 @@ def run_eval(db: str, methods: list[MethodSpec], suites: list[str], tasks: list[
         for m in methods:
             store.register_method(m.config_hash, m.label, m.canonical())
         summary = EvalSummary(db=str(db), planned=len(every), already_done=len(every) - len(todo))
+        options = replace(options, pool_k=max(m.effective_k for m in methods))
         runner = make_backend(backend, options, workers, address) if todo else None
         try:
             for row in (runner.run(todo) if runner else ()):

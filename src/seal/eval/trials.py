@@ -20,6 +20,7 @@ from seal.steer.engine import METHODS
 from seal.verify import VERIFIERS
 
 KNOBS = ("clean", "misaligned")
+EVAL_METHODS = tuple(m for m in METHODS if m != "value")  # value has no trained scorer yet
 
 
 @dataclass(frozen=True)
@@ -39,11 +40,11 @@ class MethodSpec:
     render: str = "stock"
 
     def __post_init__(self) -> None:
-        if self.method not in METHODS:
-            raise InvalidInput(f"unknown method {self.method!r}; valid: {', '.join(METHODS)}")
         if self.method == "value":
             raise InvalidInput("method 'value' needs a trained V-GPS scorer, which no command ships yet; "
-                               f"valid here: {', '.join(m for m in METHODS if m != 'value')}")
+                               f"valid here: {', '.join(EVAL_METHODS)}")
+        if self.method not in METHODS:
+            raise InvalidInput(f"unknown method {self.method!r}; valid: {', '.join(EVAL_METHODS)}")
         if self.verifier not in VERIFIERS:
             raise InvalidInput(f"unknown verifier {self.verifier!r}; valid: {', '.join(VERIFIERS)}")
         if self.knobs not in KNOBS:
@@ -94,7 +95,7 @@ def parse_methods(text: str, **defaults) -> list[MethodSpec]:
             spec = replace(spec, **{key: _convert(key, value)})
         out.append(spec)
     if not out:
-        raise InvalidInput(f"no methods given; valid: {', '.join(m for m in METHODS if m != 'value')}")
+        raise InvalidInput(f"no methods given; valid: {', '.join(EVAL_METHODS)}")
     hashes = [m.config_hash for m in out]
     if len(set(hashes)) != len(hashes):
         raise InvalidInput(f"the same method configuration is listed twice in {text!r}")
