@@ -179,3 +179,20 @@ def test_ray_backend_on_a_local_cluster(tmp_path):
     assert all(r.worker.startswith("ray-") for r in rb)
     # seeded policy, exact simulator: the same trials give the same episodes on either backend
     assert [(r.trial, r.steps, r.success) for r in ra] == [(r.trial, r.steps, r.success) for r in rb]
+
+
+def test_store_migrates_an_older_schema(tmp_path):
+    db = tmp_path / "r.db"
+    with ResultStore(db) as store:
+        store.add(TrialRow(method="base", config_hash="h", suite="libero_10", task=0, trial=0, init_index=0, seed=0))
+    con = sqlite3.connect(db)  # make it look like a v1 file (before policy_s existed)
+    con.execute("ALTER TABLE trials DROP COLUMN policy_s")
+    con.execute("UPDATE seal_meta SET value = '1' WHERE key = 'schema_version'")
+    con.commit()
+    con.close()
+    with ResultStore(db) as store:
+        (row,) = store.rows()
+    assert row.policy_s == 0.0
+    con = sqlite3.connect(db)
+    assert con.execute("SELECT value FROM seal_meta WHERE key = 'schema_version'").fetchone()[0] == "2"
+    con.close()

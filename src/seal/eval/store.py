@@ -18,7 +18,7 @@ from pathlib import Path
 
 from seal.errors import InvalidInput
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # v2 added trials.policy_s
 MAGIC = "seal-results"
 
 _SCHEMA = """
@@ -151,6 +151,15 @@ class ResultStore:
             self._db.execute("PRAGMA quick_check").fetchone()
         except sqlite3.DatabaseError as exc:
             raise InvalidInput(f"{self.path} is corrupted ({exc}); it was left untouched") from None
+        if version < SCHEMA_VERSION:
+            self._migrate(version)
+
+    def _migrate(self, version: int) -> None:
+        """Bring an older database of ours up to date, in one transaction."""
+        with self._tx():
+            if version < 2:
+                self._db.execute("ALTER TABLE trials ADD COLUMN policy_s REAL NOT NULL DEFAULT 0")
+            self._db.execute("UPDATE seal_meta SET value = ? WHERE key = 'schema_version'", (str(SCHEMA_VERSION),))
 
     def close(self) -> None:
         self._db.close()
