@@ -398,6 +398,17 @@ def place(s: SceneState, obj: str, target: str, knobs: Knobs) -> Step:
     return Step(hold(OPEN))
 
 
+def _holder(s: SceneState, target: str) -> str | None:
+    """The fixture or object a region belongs to (a cabinet, a basket), None for a table region."""
+    owner = max((n for n in s.bodies if target.startswith(n + "_")), key=len, default=None)
+    return None if owner is None or owner.endswith("_table") else owner
+
+
+def _footprint(body: Body) -> np.ndarray:
+    """World-frame (x, y) extent of an upright object, whatever its yaw: its widest horizontal side."""
+    return np.full(2, float(np.max(body.local_hi[:2] - body.local_lo[:2])))
+
+
 def _release_tolerance(s: SceneState, obj: str, target: str) -> np.ndarray:
     """How far (world x, y) the carried object's origin may be off its goal when let go.
 
@@ -432,6 +443,10 @@ def _release_pose(s: SceneState, obj: str, target: str, xy: np.ndarray, release_
     if target in s.sites and not target.endswith("contain_region"):
         site = s.sites[target]
         half = (np.abs(site.xmat) @ site.size)[:2] - 0.02
+        if _holder(s, target) is not None:
+            # Inside a fixture (a drawer, a shelf): the whole object must fit, not just its origin,
+            # or it lands on a wall and tilts (a tilted bowl then jams the drawer).
+            half = (np.abs(site.xmat) @ site.size)[:2] - _footprint(body) / 2 - 0.01
         spots += [(xy + np.array([dx, dy]) * np.maximum(half, 0.0), 0.02)
                   for dx in (-1, 0, 1) for dy in (-1, 0, 1) if dx or dy]
     best, best_cost = (xy, now), np.inf
