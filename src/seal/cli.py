@@ -80,6 +80,21 @@ def _cmd_demos(args) -> int:
     return 0
 
 
+def _cmd_serve(args) -> int:
+    from seal.serving.server import PolicyServer, scripted_factory, scripted_info
+
+    server = PolicyServer(scripted_factory(args.knobs, seed=args.seed), scripted_info(args.max_batch),
+                          host=args.host, port=args.port, default_task=args.task or None,
+                          metadata={"policy": args.policy, "knobs": args.knobs, "action_dim": 7, "action_horizon": 16})
+
+    def ready(port: int) -> None:  # one JSON line on stdout: scripts (and tests) read the port from it
+        print(json.dumps({"event": "listening", "url": f"ws://{args.host}:{port}", "port": port}), flush=True)
+
+    server.serve_forever(ready)
+    print(json.dumps({"event": "stopped", "requests": server.requests}), flush=True)
+    return 0
+
+
 def _cmd_bench(args) -> int:
     from seal.benchmarks import run_benchmark
 
@@ -133,6 +148,16 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("--knobs", default="clean", choices=["clean", "misaligned"])
     rec.add_argument("--out", required=True)
     rec.set_defaults(func=_cmd_demos)
+
+    serve = sub.add_parser("serve", help="serve a SEAL policy over openpi's websocket protocol (docs/serving.md)")
+    serve.add_argument("--policy", default="scripted", choices=["scripted"])
+    serve.add_argument("--knobs", default="misaligned", choices=["clean", "misaligned"])
+    serve.add_argument("--host", default="127.0.0.1", help="0.0.0.0 to accept other machines")
+    serve.add_argument("--port", type=int, default=8000, help="0: any free port (printed on stdout)")
+    serve.add_argument("--task", default="", help="task for clients that do not configure one, e.g. libero_10/0")
+    serve.add_argument("--max-batch", type=int, default=64, help="largest batched request accepted")
+    serve.add_argument("--seed", type=int, default=0)
+    serve.set_defaults(func=_cmd_serve)
 
     bench = sub.add_parser("bench", help="benchmarks; each prints one JSON object")
     bench.add_argument("what", choices=["sim", "expert", "steer", "runtime"])
