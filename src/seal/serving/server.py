@@ -60,9 +60,11 @@ def scripted_factory(knobs: str = "misaligned", seed: int = 0) -> PolicyFactory:
     return make
 
 
-def scripted_info(max_batch: int = 64) -> P.ServerInfo:
-    return P.ServerInfo(reasoning=True, batch=True, max_batch=max_batch, control=True, privileged=True, images=False,
-                        version=P.PROTOCOL_VERSION)
+def scripted_info(max_batch: int = 64, *, plain: bool = False) -> P.ServerInfo:
+    """``plain``: behave like a pi0 server - no reasoning or think in replies, no batching; the
+    expert then follows its own hidden plan for the whole task (a stand-in for pi0 in tests)."""
+    return P.ServerInfo(reasoning=not plain, batch=not plain, max_batch=max_batch, control=True, privileged=True,
+                        images=False, version=P.PROTOCOL_VERSION)
 
 
 @dataclass
@@ -152,7 +154,8 @@ class PolicyServer:
         obs = P.parse_request(req, needs_images=self.info.images, needs_scene=self.info.privileged)
         n = req.get(P.BATCH)
         rows = P.request_rows(req, n)
-        reasoning = P.parse_reasoning(req[P.REASONING]) if P.REASONING in req else None
+        given = req.get(P.REASONING) if self.info.reasoning else None
+        reasoning = P.parse_reasoning(given) if given is not None else None
         if reasoning is None and n is not None:
             raise P.ProtocolError(f"a batched request ({P.BATCH!r}) must carry 'reasoning' to act on")
         async with session.lock:
@@ -167,6 +170,8 @@ class PolicyServer:
             reply[P.THINK] = np.array([c.think for c in chunks], dtype=bool)
         if self.info.reasoning:
             reply[P.REASONING] = reasoning.text()
+        else:  # a plain server says nothing about its plan
+            del reply[P.THINK]
         return reply
 
     async def _control(self, ctrl: str, req: dict, sid: str) -> dict:
