@@ -22,6 +22,7 @@ verifier accepts (``thinks = False``).
 
 from __future__ import annotations
 
+import inspect
 import logging
 import time
 import uuid
@@ -42,6 +43,8 @@ from seal.sim.observation import Observation
 log = logging.getLogger(__name__)
 
 TRANSPORTS = ("auto", "batched", "concurrent", "sequential")
+# websockets >= 17 warns unless a directly used connection says so explicitly; older ones lack the flag
+_LEGACY = {"legacy": True} if "legacy" in inspect.signature(ws_client.connect).parameters else {}
 PROMPTS = ("task", "subplan")
 
 
@@ -90,7 +93,7 @@ class _Lane:
             try:
                 # proxy=None: a policy server sits beside the simulator; never route it via HTTP_PROXY
                 self.ws = ws_client.connect(cfg.uri, compression=None, max_size=None, proxy=None,
-                                            open_timeout=cfg.connect_timeout_s, close_timeout=1.0)
+                                            open_timeout=cfg.connect_timeout_s, close_timeout=1.0, **_LEGACY)
                 metadata = msgpack_numpy.unpackb(self.ws.recv(timeout=cfg.connect_timeout_s))
                 return metadata
             except (OSError, TimeoutError, websockets.WebSocketException, ValueError) as exc:

@@ -263,10 +263,16 @@ class ServerThread:
     def port(self) -> int:
         return self.server.port
 
+    def stop(self) -> None:
+        """Close every connection and stop serving (safe to call from any thread, and twice)."""
+        if self._thread.is_alive():
+            self._loop.call_soon_threadsafe(lambda: self._stop.done() or self._stop.set_result(None))
+            self._thread.join(timeout=15)
+
     def __exit__(self, *exc) -> None:
-        self._loop.call_soon_threadsafe(lambda: self._stop.done() or self._stop.set_result(None))
-        self._thread.join(timeout=15)
-        self._loop.close()
+        self.stop()
+        if not self._thread.is_alive():
+            self._loop.close()
 
 
 class ServerProcess:
