@@ -197,11 +197,11 @@ def build_parser() -> argparse.ArgumentParser:
     serve.set_defaults(func=_cmd_serve)
 
     bench = sub.add_parser("bench", help="benchmarks; each prints one JSON object")
-    bench.add_argument("what", choices=["sim", "expert", "steer", "runtime"])
+    bench.add_argument("what", choices=["sim", "expert", "steer", "runtime", "serve"])
     bench.add_argument("--ks", default="", help="runtime: comma-separated K values (default 1,2,4,8,10)")
     bench.add_argument("--latency", type=float, default=2.0, help="runtime: fixed verifier latency in seconds")
     bench.add_argument("--tasks", default="", help="comma-separated task ids (expert: all; steer: 0,1,7; runtime: 5)")
-    bench.add_argument("--trials", type=int, default=50, help="expert/steer/runtime: trials (init states) per task")
+    bench.add_argument("--trials", type=int, default=50, help="expert/steer/runtime: trials (init states) per task; serve: round trips")
     bench.add_argument("--no-misaligned", action="store_true", help="expert: skip the misaligned setting")
     bench.add_argument("--suite", default="libero_10")
     bench.add_argument("--task", type=int, default=0)
