@@ -84,6 +84,7 @@ class _Lane:
         self.config = config
         self.ws: ws_client.ClientConnection | None = None
         self._packer = msgpack_numpy.Packer()
+        self.closed = False  # closed by its owner: never reconnect (e.g. a thread still waiting at Ctrl-C)
 
     def connect(self) -> dict:
         cfg, last = self.config, None
@@ -108,6 +109,8 @@ class _Lane:
         cfg = self.config
         data = self._packer.pack(request)
         for attempt in range(2):  # a dropped connection is reopened once and the request resent
+            if self.closed:
+                raise PolicyServerError(f"the connection to {cfg.uri} was closed by this client")
             if self.ws is None:
                 self.connect()
             try:
@@ -296,6 +299,7 @@ class OpenpiPolicy:
             self._executor.shutdown(wait=False, cancel_futures=True)
             self._executor = None
         for lane in self._lanes:
+            lane.closed = True
             lane.close()
 
     def __enter__(self) -> "OpenpiPolicy":

@@ -287,8 +287,18 @@ class ServerProcess:
         cmd = [sys.executable, "-m", "seal.cli", "serve", "--host", "127.0.0.1", "--port", "0", *self.args]
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, env=os.environ.copy())
         ready: dict = {}
-        reader = threading.Thread(target=lambda: ready.update(json.loads(self.proc.stdout.readline() or "{}")),
-                                  daemon=True)
+
+        def read_port() -> None:  # the first JSON line with a port; anything else printed before is skipped
+            for line in self.proc.stdout:
+                try:
+                    event = json.loads(line)
+                except ValueError:
+                    continue
+                if isinstance(event, dict) and "port" in event:
+                    ready.update(event)
+                    return
+
+        reader = threading.Thread(target=read_port, daemon=True)
         reader.start()
         reader.join(self.startup_timeout_s)
         if "port" not in ready:
