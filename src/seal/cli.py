@@ -20,7 +20,7 @@ def _cmd_run(args) -> int:
     from seal.verify import make_verifier
 
     config = SteerConfig(method=args.method, k=args.k, rounds=args.rounds, mode=args.mode,
-                         max_steps=args.max_steps, seed=args.seed)
+                         max_steps=args.max_steps, seed=args.seed, check_every=args.check_every)
     verifier = None if args.method != "seal" else make_verifier(
         args.verifier, model=args.model, base_url=args.base_url,
         false_positive=args.false_positive, false_negative=args.false_negative, seed=args.seed)
@@ -28,15 +28,34 @@ def _cmd_run(args) -> int:
     if args.mismatch:
         f, m, d = (float(x) for x in args.mismatch.split(","))
         mismatch = PhysicsMismatch(friction=f, mass=m, damping=d)
+    policy = _remote_policy(args) if args.policy == "remote" else None
     console = Console(stderr=True)
-    with console.status(f"{args.method} on {args.suite}/{args.task} init {args.init} (K={config.effective_k})"):
-        result = run_steered(args.suite, args.task, args.init, Path(args.out), config=config, verifier=verifier,
-                             knobs=FailureKnobs.named(args.knobs), video=not args.no_video, grids=not args.no_grids,
-                             mismatch=mismatch, render_mode=args.render)
+    try:
+        with console.status(f"{args.method} on {args.suite}/{args.task} init {args.init} (K={config.effective_k})"):
+            result = run_steered(args.suite, args.task, args.init, Path(args.out), config=config, verifier=verifier,
+                                 knobs=FailureKnobs.named(args.knobs), video=not args.no_video,
+                                 grids=not args.no_grids, mismatch=mismatch, render_mode=args.render, policy=policy)
+    finally:
+        if policy is not None:
+            policy.close()
     keys = ("task", "method", "init_index", "success", "sim_error", "steps", "wall_s", "subplans", "goal_status",
             "verifier_calls", "rounds", "fallbacks", "divergence", "timing", "trace")
     print(json.dumps({k: getattr(result, k) for k in keys}, indent=2))
     return 0
+
+
+def _remote_policy(args):
+    """`seal run --policy remote`: an openpi-protocol server, plus a planner if it does not reason."""
+    from seal.serving.client import ClientConfig, OpenpiPolicy
+    from seal.serving.planners import make_planner
+    from seal.sim.suites import get_task
+
+    spec = get_task(args.suite, args.task)
+    planner = None if not args.planner else make_planner(args.planner, spec=spec, annotations=args.annotations,
+                                                         model=args.planner_model, base_url=args.base_url)
+    config = ClientConfig(host=args.host, port=args.port, transport=args.transport,
+                          request_timeout_s=args.request_timeout, prompt=args.prompt)
+    return OpenpiPolicy(config, task=spec.key, planner=planner)
 
 
 def _cmd_ground(args) -> int:
@@ -126,6 +145,18 @@ def _cmd_report(args) -> int:
     print(json.dumps({"index": str(paths.index_html), "markdown": str(paths.markdown),
                       "csv": [str(p) for p in paths.csv], "plots": [str(p) for p in paths.plots],
                       "episode_pages": len(paths.episodes)}))
+def _cmd_serve(args) -> int:
+    from seal.serving.server import PolicyServer, scripted_factory, scripted_info
+
+    server = PolicyServer(scripted_factory(args.knobs, seed=args.seed), scripted_info(args.max_batch, plain=args.plain),
+                          host=args.host, port=args.port, default_task=args.task or None,
+                          metadata={"policy": args.policy, "knobs": args.knobs, "action_dim": 7, "action_horizon": 16})
+
+    def ready(port: int) -> None:  # one JSON line on stdout: scripts (and tests) read the port from it
+        print(json.dumps({"event": "listening", "url": f"ws://{args.host}:{port}", "port": port}), flush=True)
+
+    server.serve_forever(ready)
+    print(json.dumps({"event": "stopped", "requests": server.requests}), flush=True)
     return 0
 
 
@@ -163,6 +194,22 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--no-video", action="store_true")
     run.add_argument("--no-grids", action="store_true")
     run.add_argument("--out", default="runs/demo")
+    run.add_argument("--policy", default="scripted", choices=["scripted", "remote"],
+                     help="remote: an openpi-protocol policy server at --host/--port (docs/serving.md)")
+    run.add_argument("--host", default="127.0.0.1", help="remote policy server host (or a ws:// URI)")
+    run.add_argument("--port", type=int, default=8000, help="remote policy server port")
+    run.add_argument("--transport", default="auto", choices=["auto", "batched", "concurrent", "sequential"],
+                     help="remote: how K observations are sent")
+    run.add_argument("--request-timeout", type=float, default=30.0, help="remote: seconds to wait for one reply")
+    run.add_argument("--planner", default="", choices=["", "annotations", "vlm"],
+                     help="sub-plans for a remote server that does not reason (plain pi0)")
+    run.add_argument("--annotations", default=None,
+                     help="annotations planner: JSON file or LeRobot dataset dir (default: the task's decomposition)")
+    run.add_argument("--planner-model", default=None, help="vlm planner: model name (default gpt-4o)")
+    run.add_argument("--prompt", default="task", choices=["task", "subplan"],
+                     help="remote server without reasoning: prompt with the task or the current sub-plan")
+    run.add_argument("--check-every", type=int, default=20,
+                     help="policies without <think>: steps between mid-rollout verifier checks")
     run.set_defaults(func=_cmd_run)
 
     gr = sub.add_parser("ground", help="the goal atoms the oracle verifier checks for a sub-plan text")
@@ -217,12 +264,24 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--no-episodes", action="store_true", help="skip the per-episode pages")
     rep.set_defaults(func=_cmd_report)
 
+    serve = sub.add_parser("serve", help="serve a SEAL policy over openpi's websocket protocol (docs/serving.md)")
+    serve.add_argument("--policy", default="scripted", choices=["scripted"])
+    serve.add_argument("--knobs", default="misaligned", choices=["clean", "misaligned"])
+    serve.add_argument("--host", default="127.0.0.1", help="0.0.0.0 to accept other machines")
+    serve.add_argument("--port", type=int, default=8000, help="0: any free port (printed on stdout)")
+    serve.add_argument("--task", default="", help="task for clients that do not configure one, e.g. libero_10/0")
+    serve.add_argument("--max-batch", type=int, default=64, help="largest batched request accepted")
+    serve.add_argument("--seed", type=int, default=0)
+    serve.add_argument("--plain", action="store_true",
+                       help="answer like a plain pi0 server: actions only, no reasoning, think or batching")
+    serve.set_defaults(func=_cmd_serve)
+
     bench = sub.add_parser("bench", help="benchmarks; each prints one JSON object")
-    bench.add_argument("what", choices=["sim", "expert", "steer", "runtime", "eval"])
+    bench.add_argument("what", choices=["sim", "expert", "steer", "runtime", "eval", "serve"])
     bench.add_argument("--ks", default="", help="runtime: comma-separated K values (default 1,2,4,8,10)")
     bench.add_argument("--latency", type=float, default=2.0, help="runtime: fixed verifier latency in seconds")
     bench.add_argument("--tasks", default="", help="comma-separated task ids (expert: all; steer: 0,1,7; runtime: 5)")
-    bench.add_argument("--trials", type=int, default=50, help="expert/steer/runtime: trials (init states) per task")
+    bench.add_argument("--trials", type=int, default=50, help="expert/steer/runtime: trials (init states) per task; serve: round trips")
     bench.add_argument("--no-misaligned", action="store_true", help="expert: skip the misaligned setting")
     bench.add_argument("--suite", default="libero_10")
     bench.add_argument("--task", type=int, default=0)

@@ -10,7 +10,8 @@ import importlib
 
 BENCHMARKS = {"sim": "seal.benchmarks.sim:run", "expert": "seal.benchmarks.expert:run",
               "steer": "seal.benchmarks.steer:run_steer", "runtime": "seal.benchmarks.steer:run_runtime",
-              "eval": "seal.benchmarks.eval:run"}
+              "eval": "seal.benchmarks.eval:run",
+              "serve": "seal.benchmarks.serve:run"}
 
 
 def run_benchmark(name: str, args) -> dict:
