@@ -333,3 +333,47 @@ def test_cli_annotate_and_bench(tmp_path, v21, capsys):
     assert bench["agreement"] == 1.0 and bench["episodes"] == 5 and bench["episodes_per_s"] > 0
     for key in ("plan_count_agreement", "frame_err_mean", "frame_err_p90"):
         assert key in bench
+
+
+def test_image_features_stored_in_parquet(tmp_path):
+    """LeRobot datasets may keep frames as PNG bytes in the parquet rows instead of mp4."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    from PIL import Image
+
+    from seal.annotate.video import camera_key, load_frames
+
+    root = tmp_path / "img"
+    episodes = make_v30(root, [12, 9])
+    data = root / "data/chunk-000/file-000.parquet"
+    table = pq.read_table(data)
+    frames = np.concatenate([e.agent_images[:, ::4, ::4] for e in episodes])  # 56x56, lossless PNG
+
+    def png(a):
+        buf = io.BytesIO()
+        Image.fromarray(a).save(buf, format="PNG")
+        return {"bytes": buf.getvalue(), "path": None}
+
+    table = table.append_column("front", pa.array([png(a) for a in frames]))
+    pq.write_table(table, data)
+    info = json.loads((root / "meta/info.json").read_text())
+    info["features"]["front"] = {"dtype": "image", "shape": [56, 56, 3]}
+    (root / "meta/info.json").write_text(json.dumps(info))
+    reader = open_dataset(root)
+    np.testing.assert_array_equal(load_frames(reader, 1, "front"), frames[12:])
+    assert camera_key(reader) == "observation.images.image"  # our agent view wins
+    with pytest.raises(InvalidInput, match="no camera 'side'"):
+        camera_key(reader, "side")
+    # Without our key: the one non-wrist camera; with two candidates: ask.
+    other = dict(info, features={k: v for k, v in info["features"].items() if k != "observation.images.image"})
+    reader.info = other
+    assert camera_key(reader) == "front"
+    reader.info = dict(other, features={**other["features"], "side": {"dtype": "video"}})
+    with pytest.raises(InvalidInput, match="which camera"):
+        camera_key(reader)
+    reader = open_dataset(root)
+    summary = annotate_dataset(root, tmp_path / "ann", make_annotator("offline"),
+                               RunOptions(camera="front", videos=True))
+    assert summary.annotated == 2
+    with av.open(str(tmp_path / "ann/videos/episode_000001.mp4")) as c:
+        assert c.streams.video[0].codec_context.width == 56
