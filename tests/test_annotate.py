@@ -94,7 +94,7 @@ def test_clip_is_10_fps_mp4_of_the_mapped_frames(tmp_path):
         decoded = [f.to_ndarray(format="rgb24") for f in c.decode(stream)]
         assert float(stream.average_rate) == 10.0
     assert len(decoded) == fm.num_video_frames == 21
-    red = [int(round(d[..., 0].mean() / 6)) for d in decoded]
+    red = [round(d[..., 0].mean() / 6) for d in decoded]
     assert red == fm.dataset_frames()
 
 
@@ -118,8 +118,8 @@ GOOD = {"plans": ["pick up the bowl", "place it on the plate"],
     "```json\n" + json.dumps(GOOD, indent=2) + "\n```",
     "Sure! Here is the annotation:\n" + json.dumps(GOOD) + "\nLet me know if you need more.",
     "```\n" + json.dumps(GOOD) + "\n```\nNote: the grasp is at 1.2 s.",
-    '{"plans": ["1. Pick up the bowl.", "2) place it on the plate"], "critical moment": '
-    '[{"time": "1.2", "frame": "12"}, {"time": 3.05, "frame": 30.0},]}',  # seed key, strings, trailing comma
+    ('{"plans": ["1. Pick up the bowl.", "2) place it on the plate"], "critical moment": '
+     '[{"time": "1.2", "frame": "12"}, {"time": 3.05, "frame": 30.0},]}'),  # seed key, strings, trailing comma
 ])
 def test_lenient_extraction_strict_content(text):
     a = parse_answer(text, FrameMap(20, 80))

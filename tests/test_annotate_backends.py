@@ -19,10 +19,10 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
-from typing import Callable
 from urllib.parse import urlparse
 
 import av
@@ -103,7 +103,7 @@ def _handler(server: Server):
                 server.requests.append((method, urlparse(self.path).path,
                                         {k.lower(): v for k, v in self.headers.items()}, body))
 
-        def do_POST(self):  # noqa: N802
+        def do_POST(self):
             raw = self._body()
             path = urlparse(self.path).path
             if UPLOAD.match(path) and "upload_id" not in self.path:
@@ -153,7 +153,7 @@ def _handler(server: Server):
                 with server.lock:
                     server.in_flight -= 1
 
-        def do_GET(self):  # noqa: N802
+        def do_GET(self):
             m = FILE.match(urlparse(self.path).path)
             if not m:
                 return self._send(404, {"error": {"message": "no route"}})
@@ -162,7 +162,7 @@ def _handler(server: Server):
             state = states[min(1 + sum(r[0] == "GET" for r in server.requests) - 1, len(states) - 1)]
             self._send(200, _file_json(server, m.group(1), state))
 
-        def do_DELETE(self):  # noqa: N802
+        def do_DELETE(self):
             m = FILE.match(urlparse(self.path).path)
             self._record("DELETE", {})
             server.deleted.append(m.group(1) if m else self.path)
@@ -266,7 +266,7 @@ def test_openai_frames_as_images_and_valid_answer(server, tmp_path):
     assert result.status == "ok", result.error
     assert result.annotation.video_frames == [5, 10, 14, 19]
     assert result.annotation.dataset_frames == [10, 20, 28, 38]
-    [(_, path, headers, body)] = server.calls("openai")
+    [(_, _, headers, body)] = server.calls("openai")
     assert headers["authorization"] == f"Bearer {KEY}" and body["model"] == "gpt-4o"
     [message] = body["messages"]
     content = message["content"]

@@ -15,9 +15,10 @@ text counts against the token budget: prompt + reasoning + one token each for ``
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Protocol, Sequence
+from typing import Protocol
 
 from seal.errors import InvalidInput
 from seal.policies.base import ACT, ACTION_HORIZON, PREDICT_HORIZON, THINK, Reasoning

@@ -33,13 +33,14 @@ import json
 import logging
 import time
 import weakref
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Awaitable, Callable, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
-from seal.annotate.parse import AnswerError, Annotation, parse_answer
+from seal.annotate.parse import Annotation, AnswerError, parse_answer
 from seal.annotate.prompt import PROMPT_VERSION, build_prompt, frame_label, retry_message
 from seal.annotate.video import FrameMap
 from seal.errors import InvalidInput, SealError
@@ -396,7 +397,8 @@ class VLMAnnotator:
         try:
             turns: list[str] = []
             for turn in range(self.config.max_invalid + 1):
-                reply: _Reply = await call(lambda: chat.complete(prepared, prompt, turns), "generate")
+                history = list(turns)
+                reply: _Reply = await call(lambda h=history: chat.complete(prepared, prompt, h), "generate")
                 text = self._secrets.scrub(reply.text)
                 result.raw.append(text)
                 try:
@@ -431,7 +433,7 @@ class VLMAnnotator:
             try:
                 # wait_for is the hard bound; the SDK's own timeout may not cover every phase
                 value = await asyncio.wait_for(fn(), self.config.timeout_s)
-            except (asyncio.TimeoutError, TimeoutError):
+            except TimeoutError:
                 error = f"timed out after {self.config.timeout_s:g} s"
             except Exception as exc:  # noqa: BLE001 - classified just below
                 if not chat.is_transient(exc):

@@ -23,9 +23,9 @@ import fcntl
 import json
 import os
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Callable, Sequence
 
 import numpy as np
 import pyarrow as pa
@@ -123,7 +123,7 @@ class _OutDir:
         if self.root.exists() and not self.root.is_dir():
             raise InvalidInput(f"--out {self.root} exists and is not a directory")
         self.root.mkdir(parents=True, exist_ok=True)
-        self._lock = open(self.root / ".lock", "w")
+        self._lock = open(self.root / ".lock", "w")  # noqa: SIM115 - held open for the run: the flock lives on it
         try:
             fcntl.flock(self._lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -188,7 +188,7 @@ def _labels_table(episode: int, instruction: str, length: int, plans: list[str],
     labels = chunk_labels(plans, frames, length, horizon)
     sequences = training_sequences(instruction, labels, length, counter)
     chunk_of = np.arange(length) // horizon
-    pick = lambda values: [values[c] for c in chunk_of]  # noqa: E731
+    pick = lambda values: [values[c] for c in chunk_of]
     frame_index = np.arange(length, dtype=np.int64)
     table = pa.table({
         "episode_index": pa.array(np.full(length, episode, dtype=np.int64)),

@@ -61,7 +61,7 @@ def quality_report(records: dict[int, dict], reader: LeRobotReader, horizon: int
         rows.append(compare_episode(record, plans, frames, horizon))
     errors = np.array([e for r in rows for e in r["frame_errors"]], dtype=float)
     labels = sum(r["labels"] for r in rows)
-    share = lambda k: round(sum(r[k] for r in rows) / labels, 4) if labels else None  # noqa: E731
+    share = lambda k: round(sum(r[k] for r in rows) / labels, 4) if labels else None
     return {
         "episodes": len(records),
         "compared": len(rows),
