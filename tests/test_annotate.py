@@ -377,3 +377,16 @@ def test_image_features_stored_in_parquet(tmp_path):
     assert summary.annotated == 2
     with av.open(str(tmp_path / "ann/videos/episode_000001.mp4")) as c:
         assert c.streams.video[0].codec_context.width == 56
+
+
+def test_damaged_episode_fails_alone(tmp_path, v21):
+    import shutil
+
+    root = tmp_path / "ds"
+    shutil.copytree(v21, root)
+    (root / "videos/chunk-000/observation.images.image/episode_000001.mp4").unlink()
+    out = tmp_path / "ann"
+    summary = annotate_dataset(root, out, make_annotator("offline"), RunOptions(videos=True))
+    assert (summary.annotated, summary.failed) == (4, 1)
+    record = read_annotations(out)[1]
+    assert record["status"] == "failed" and "episode_000001.mp4 is missing" in record["error"]

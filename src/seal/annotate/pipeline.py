@@ -283,10 +283,18 @@ async def _run(reader, store, annotator, todo, camera, videos, options, counter,
     async def one(episode: int) -> None:
         async with semaphore:
             t0 = time.perf_counter()
-            job, global_index = await asyncio.to_thread(_prepare, reader, store, episode, camera, videos,
-                                                        annotator.needs_clip)
-            result = await annotator.annotate(job)
-            record, labels = _record(job, result, annotator, options, counter, global_index, videos)
+            try:
+                job, global_index = await asyncio.to_thread(_prepare, reader, store, episode, camera, videos,
+                                                            annotator.needs_clip)
+            except InvalidInput as exc:  # a damaged episode fails alone; the run goes on
+                result = AnnotatorResult(status="failed", error=f"reading the episode failed: {exc}")
+                record = {"episode_index": episode, "status": "failed", "backend": annotator.backend,
+                          "model": annotator.model, "plans": [], "critical_moments": [], "error": result.error,
+                          "raw": [], "calls": 0, "cost_usd": 0.0}
+                labels = None
+            else:
+                result = await annotator.annotate(job)
+                record, labels = _record(job, result, annotator, options, counter, global_index, videos)
             record["wall_s"] = round(time.perf_counter() - t0, 3)
             store.commit(record, labels, result.calls)
             _tally(summary, record, result)
