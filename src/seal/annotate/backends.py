@@ -47,6 +47,7 @@ from seal.errors import InvalidInput, SealError
 
 # Shared with the VLM verifier so both speak to the SDKs, price calls and guard keys the same way.
 from seal.verify.vlm import (
+    openai_is_transient,
     PRICES_PER_MTOK,
     VerdictCache,
     _require_key,
@@ -236,13 +237,7 @@ class _OpenAIChat:
         return None
 
     def is_transient(self, exc: BaseException) -> bool:
-        import openai
-
-        if isinstance(exc, openai.APIConnectionError):  # includes APITimeoutError
-            return True
-        if isinstance(exc, openai.APIStatusError):
-            return _status_is_transient(exc.status_code)
-        return isinstance(exc, _transport_errors())
+        return openai_is_transient(exc)
 
     async def aclose(self) -> None:
         await self._client.close()
