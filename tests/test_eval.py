@@ -196,3 +196,28 @@ def test_store_migrates_an_older_schema(tmp_path):
     con = sqlite3.connect(db)
     assert con.execute("SELECT value FROM seal_meta WHERE key = 'schema_version'").fetchone()[0] == "2"
     con.close()
+
+
+def test_workers_die_with_a_killed_coordinator(tmp_path):
+    """An orphaned worker would finish its trial and write into files a resumed run rewrites."""
+    db = tmp_path / "results.db"
+    cmd = [sys.executable, "-m", "seal.cli", "eval", "--suite", "libero_10", "--tasks", "0", "--trials", "6",
+           "--methods", "base", "--db", str(db), "--max-steps", str(SHORT), "--video", "none"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline, rows = time.time() + 240, []
+    while time.time() < deadline and proc.poll() is None and not rows:
+        time.sleep(0.5)
+        try:
+            with ResultStore(db, create=False) as store:
+                rows = store.rows()
+        except (InvalidInput, sqlite3.OperationalError):
+            continue
+    assert rows, "the run never stored a trial"
+    worker_pid = int(rows[0].worker.rsplit(":", 1)[1])
+    os.kill(proc.pid, signal.SIGKILL)  # the coordinator only: no cleanup code runs
+    proc.wait(30)
+    for _ in range(40):
+        if not Path(f"/proc/{worker_pid}").exists():
+            break
+        time.sleep(0.25)
+    assert not Path(f"/proc/{worker_pid}").exists(), "the worker outlived its coordinator"

@@ -39,11 +39,25 @@ def crashed_row(spec: TrialSpec, why: str, worker: str = "") -> TrialRow:
 
 
 # ---- local processes ----------------------------------------------------------------------
+def _exit_with_parent(parent: int) -> None:
+    """Die as soon as the coordinating process is gone (even SIGKILLed): an orphaned worker
+    would finish its trial and write into a trial directory that a resumed run rewrites."""
+    import os
+    import time
+
+    while os.getppid() == parent:
+        time.sleep(0.5)
+    os._exit(1)
+
+
 def _local_worker(conn, options: RunOptions, name: str) -> None:
+    import os
     import signal
+    import threading
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops us
-    runner = TrialRunner(options, worker_name=name)
+    threading.Thread(target=_exit_with_parent, args=(os.getppid(),), daemon=True).start()
+    runner = TrialRunner(options, worker_name=f"{name}:{os.getpid()}")
     try:
         while True:
             spec = conn.recv()

@@ -220,7 +220,7 @@ def write_episode(data: ReportData, row: TrialRow, out_dir: Path, media: MediaPl
         parts.append(f'<p class="note">Trace {esc(row.trace_path) or "(none)"} not found.</p>')
     else:
         grids_dir = trace_path.parent / "grids"
-        parts.append(_trace_html(read_trace(trace_path), grids_dir, ident, media, page_dir))
+        parts.append(_trace_html(read_trace(trace_path, strict=False), grids_dir, ident, media, page_dir))
     path = page_dir / f"{ident}.html"
     path.write_text(_page(f"{label} {row.suite}/{row.task} #{row.trial}", "\n".join(parts)))
     return path
