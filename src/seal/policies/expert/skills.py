@@ -287,6 +287,11 @@ def _rim_candidates(s: SceneState, name: str, body: Body) -> list[tuple[np.ndarr
         radial = ey if ext[0] > ext[1] else ex  # perpendicular to the handle axis
     else:
         radial = s.eef_pos[:2] - cup
+        if np.linalg.norm(radial) < min(ext) / 4:  # well inside the rim (a grasp point sits on it)
+            # The hand is over the bowl: the direction to it is ill-defined and swings with
+            # every centimetre the hand moves (the target yaw then flips between half-turn
+            # twins within one chunk and the wrist stalls). Pinch along the current finger axis.
+            radial = s.finger_axis[:2].copy()
         radial = radial / (np.linalg.norm(radial) + 1e-9)
     radius = min(ext) / 2
     z = max(body.hi[2] - min(0.02, 0.5 * body.size[2]), _min_grasp_z(s))
