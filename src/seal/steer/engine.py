@@ -11,6 +11,12 @@ For each sub-plan the policy writes:
                actions are executed in a separate evaluation world (``replay`` mode) and every
                slot is moved to what really happened there.
 
+A policy that never emits <think> (``policy.thinks`` is False: a plain pi0 server, whose
+sub-plans come from an external planner) cannot say when its sub-plan is done. For it, the
+verifier also checks each candidate every ``check_every`` steps in the background; the first
+check that passes ends the candidate at that point (``ended_by="verified"``), so a sub-plan ends
+when the verifier accepts or on its step budget.
+
 If no candidate passes, the round is resampled (up to ``rounds`` rounds); then the candidate
 with the best verifier score wins, and if no verifier gave a score, the first candidate.
 
@@ -51,6 +57,7 @@ class SteerConfig:
     max_steps: int | None = None  # default: the suite's limit (520 for LIBERO-10)
     seed: int = 0
     value_goal: str = "task"  # value method: what the scorer is conditioned on (V-GPS uses the task)
+    check_every: int = 20  # policies that never think: steps between mid-rollout verifier checks
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -59,9 +66,10 @@ class SteerConfig:
             raise InvalidInput(f"unknown value goal {self.value_goal!r}; valid: {', '.join(VALUE_GOALS)}")
         if self.mode not in MODES:
             raise InvalidInput(f"unknown mode {self.mode!r}; valid: {', '.join(MODES)}")
-        if self.k < 1 or self.rounds < 1 or self.subplan_budget < ACTION_HORIZON:
-            raise InvalidInput(f"need k >= 1, rounds >= 1, subplan_budget >= {ACTION_HORIZON}; got "
-                               f"k={self.k}, rounds={self.rounds}, subplan_budget={self.subplan_budget}")
+        if self.k < 1 or self.rounds < 1 or self.subplan_budget < ACTION_HORIZON or self.check_every < ACTION_HORIZON:
+            raise InvalidInput(f"need k >= 1, rounds >= 1, subplan_budget >= {ACTION_HORIZON}, check_every >= "
+                               f"{ACTION_HORIZON}; got k={self.k}, rounds={self.rounds}, "
+                               f"subplan_budget={self.subplan_budget}, check_every={self.check_every}")
 
     @property
     def effective_k(self) -> int:
@@ -75,13 +83,25 @@ class Candidate:
     actions: list = field(default_factory=list)  # executed (5-step) chunks, in order
     steps: int = 0
     snapshot: Snapshot | None = None
-    ended_by: str = ""  # think | budget | step_limit | task_success | error
+    ended_by: str = ""  # think | budget | step_limit | task_success | verified | error
     error: str | None = None
     verdict: Verdict | None = None
     future: Future | None = None
     t_start: float = 0.0
     t_end: float = 0.0
     t_verified: float = 0.0
+    checks: list = field(default_factory=list)  # mid-rollout checks of a policy that never thinks
+
+
+@dataclass
+class _Check:
+    """A verification of a candidate's state part-way through its rollout."""
+
+    future: Future
+    snapshot: Snapshot
+    chunks: int  # executed chunks up to this point
+    steps: int
+    verdict: Verdict | None = None
 
 
 @dataclass
@@ -130,6 +150,8 @@ class Steerer:
         self._rng = np.random.default_rng(config.seed)
         self._atoms = policy.privileged_atoms() if hasattr(policy, "privileged_atoms") else None
         self._needs_images = self._atoms is None  # a real VLA looks at images; the expert does not
+        # A policy without <think> (plain pi0 + a planner): the verifier decides when a sub-plan is done.
+        self._check_midway = config.method == "seal" and not getattr(policy, "thinks", True)
 
     # ---- the episode ------------------------------------------------------------------------
     def run(self, init_index: int) -> SteerResult:
@@ -286,6 +308,12 @@ class Steerer:
                     if res.success:  # the whole task holds: nothing left to verify against
                         self._finish(c, "task_success", obs0, reasoning, background, result)
                         active.remove(res.slot)
+                    elif self._check_midway and c.steps >= (len(c.checks) + 1) * cfg.check_every:
+                        c.checks.append(_Check(background.submit(self._request(c, obs0, reasoning)), c.snapshot,
+                                               len(c.actions), c.steps))
+                        result.verifier_calls += 1
+            if self._check_midway:
+                self._take_checks(cands, active)
             winner = self._first_pass(cands)
         if winner is None:
             winner = self._wait_for_verdicts(cands, result)
@@ -294,6 +322,12 @@ class Steerer:
                 c.ended_by = "stopped"
             if c.future is not None and not c.future.done():
                 c.future.cancel()
+            for chk in c.checks:
+                if chk.verdict is None and chk.future.done() and not chk.future.cancelled():
+                    chk.verdict = chk.future.result()
+                    self._account(chk.verdict)
+                elif not chk.future.done():
+                    chk.future.cancel()
         if self.grid_dir is not None:
             self._grid(r, cands, reasoning)
         for c in cands:
@@ -311,15 +345,34 @@ class Steerer:
             c.verdict = Verdict(True, "the task's goal holds", score=1.0)
             c.t_verified = c.t_end
             return
+        c.future = background.submit(self._request(c, obs0, reasoning))
+        result.verifier_calls += 1
+
+    def _request(self, c: Candidate, obs0, reasoning) -> VerifyRequest:
+        """What the verifier judges: the sub-plan and the candidate's slot as it is now."""
         request = VerifyRequest(subplan=reasoning.now, instruction=self.pool.task.instruction, plans=reasoning.plans,
                                 index=reasoning.plans.index(reasoning.now) if reasoning.now in reasoning.plans else None,
                                 first_agent=obs0.agent, task=self.pool.task.key, candidate=c.slot)
         atoms = self.verifier.atoms_needed(request, self._objects)
-        images = self.verifier.needs_images
-        final = self._observe(c.slot, images=images, atoms=atoms)
+        final = self._observe(c.slot, images=self.verifier.needs_images, atoms=atoms)
         request.scene, request.final_agent, request.final_wrist = final.scene, final.agent, final.wrist
-        c.future = background.submit(request)
-        result.verifier_calls += 1
+        return request
+
+    def _take_checks(self, cands: list[Candidate], active: list[int]) -> None:
+        """A passed mid-rollout check ends its candidate at the checked point (the later chunks,
+        already run in its slot, are dropped: the commit syncs to the checked snapshot)."""
+        for i in list(active):
+            c = cands[i]
+            for chk in c.checks:
+                if chk.verdict is None and chk.future.done():
+                    chk.verdict = chk.future.result()
+                    self._account(chk.verdict)
+                if chk.verdict is not None and chk.verdict.passed:
+                    c.actions, c.steps, c.snapshot = c.actions[: chk.chunks], chk.steps, chk.snapshot
+                    c.verdict, c.ended_by = chk.verdict, "verified"
+                    c.t_end = c.t_verified = time.perf_counter()
+                    active.remove(i)
+                    break
 
     def _first_pass(self, cands: list[Candidate]) -> Candidate | None:
         method = self.config.method
@@ -349,9 +402,12 @@ class Steerer:
     def _take_verdict(self, c: Candidate) -> None:
         """Collect a finished verification; every call is paid for, winner or not."""
         c.verdict, c.t_verified = c.future.result(), time.perf_counter()
-        self._result.input_tokens += c.verdict.input_tokens
-        self._result.output_tokens += c.verdict.output_tokens
-        self._result.cost_usd += c.verdict.cost_usd
+        self._account(c.verdict)
+
+    def _account(self, verdict: Verdict) -> None:
+        self._result.input_tokens += verdict.input_tokens
+        self._result.output_tokens += verdict.output_tokens
+        self._result.cost_usd += verdict.cost_usd
 
     # ---- commit ----------------------------------------------------------------------------
     def _commit(self, winner: Candidate, committed: Snapshot, result: SteerResult) -> Snapshot:

@@ -42,10 +42,11 @@ def render_executed(spec, init_index: int, actions: np.ndarray, path: Path, *, r
 
 def run_steered(suite: str, task_id: int, init_index: int, out_dir: Path, *, config: SteerConfig, verifier,
                 knobs: FailureKnobs, video: bool = True, grids: bool = True, mismatch: PhysicsMismatch | None = None,
-                render_mode: str = "stock", workers: int | None = None) -> SteerResult:
+                render_mode: str = "stock", workers: int | None = None, policy=None) -> SteerResult:
+    """``policy``: any `ReasoningPolicy` (e.g. a remote `OpenpiPolicy`); default the scripted expert."""
     spec = get_task(suite, task_id)
     out_dir.mkdir(parents=True, exist_ok=True)
-    policy = expert_policy(spec, knobs, seed=config.seed)
+    policy = policy if policy is not None else expert_policy(spec, knobs, seed=config.seed)
     eval_world = LiberoWorld(spec, render_mode=render_mode) if config.mode == "replay" else None
     try:
         with EnvPool(spec, k=config.effective_k, workers=workers, render_mode=render_mode, physics=mismatch) as pool, \

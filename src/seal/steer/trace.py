@@ -38,8 +38,19 @@ class Trace:
         self.close()
 
 
-def read_trace(path: Path) -> list[dict]:
-    return [json.loads(line) for line in Path(path).read_text().splitlines() if line.strip()]
+def read_trace(path: Path, *, strict: bool = True) -> list[dict]:
+    """The events of a trace. ``strict=False`` skips lines that are not JSON (a process killed
+    mid-write leaves half a line) instead of raising; readers that show traces use it."""
+    events = []
+    for line in Path(path).read_text().splitlines():
+        if not line.strip():
+            continue
+        try:
+            events.append(json.loads(line))
+        except json.JSONDecodeError:
+            if strict:
+                raise
+    return events
 
 
 def _plain(obj):

@@ -247,6 +247,17 @@ class _Backend(Protocol):
     async def aclose(self) -> None: ...
 
 
+def openai_is_transient(exc: BaseException) -> bool:
+    """Whether an openai SDK error is worth retrying (connection trouble, timeouts, 429, 5xx)."""
+    import openai
+
+    if isinstance(exc, openai.APIConnectionError):  # includes APITimeoutError
+        return True
+    if isinstance(exc, openai.APIStatusError):
+        return _status_is_transient(exc.status_code)
+    return isinstance(exc, _transport_errors())
+
+
 def _status_is_transient(status: int | None) -> bool:
     return status is not None and (status in (408, 429) or status >= 500)
 
@@ -305,13 +316,7 @@ class _OpenAIBackend:
         )
 
     def is_transient(self, exc: BaseException) -> bool:
-        import openai
-
-        if isinstance(exc, openai.APIConnectionError):  # includes APITimeoutError
-            return True
-        if isinstance(exc, openai.APIStatusError):
-            return _status_is_transient(exc.status_code)
-        return isinstance(exc, _transport_errors())
+        return openai_is_transient(exc)
 
     async def aclose(self) -> None:
         await self._client.close()

@@ -67,6 +67,9 @@ DOOR_INNER_REACH = 0.75  # push a door open this far out along it (fraction of t
 DOOR_OPEN_TO = 1.38  # radians to push a door open to (LIBERO's microwave: open beyond 1.3)
 DOOR_GRIP_OUT = 0.006  # grip this far out beyond the handle's axis: the hand then clears the door's face
 
+PUSH_IN_MARGIN = 0.012  # push what sticks out of a doorway this far behind the door's plane
+PUSH_IN_HEIGHT = 0.45  # ... pressing at this fraction of its height (a mug: its handle)
+
 # Knobs.
 KNOB_GRIP_DEPTH = 0.02  # eef this far below the ridge's top: pads on the ridge, tips above the dial
 KNOB_LEAD = 0.4  # radians the wrist runs ahead of the knob while twisting
@@ -464,15 +467,115 @@ def _door(a: Articulation) -> _Door:
                  radius=float(np.linalg.norm(_flat(handle - a.anchor))), top=float(plate.hi[2]))
 
 
+@dataclass(frozen=True)
+class Opening:
+    """The doorway a hinged door closes (a microwave's front), in the closed door's frame.
+
+    Depth is measured from the closed door's plane into the fixture; lateral offsets from the
+    hinge along the closed door. Everything comes from the door's geometry, so the same code
+    serves any fixture with a vertical-hinged door and any side it opens on."""
+
+    door: _Door
+    out: np.ndarray  # horizontal unit normal of the closed door, pointing out of the fixture
+    along: np.ndarray  # horizontal unit vector from the hinge along the closed door
+    leaf: float  # the door's length from the hinge: the doorway is no wider than this
+    bottom: float  # the door leaf's lower and upper edges: the doorway's height
+    top: float
+
+    def depth(self, p: np.ndarray) -> float:
+        """How far ``p`` lies inside the closed door's plane (negative: in front of it)."""
+        return float((self.door.a.anchor - p) @ self.out)
+
+    def lateral(self, p: np.ndarray) -> float:
+        return float((p - self.door.a.anchor) @ self.along)
+
+    def point(self, lateral: float, depth: float, z: float) -> np.ndarray:
+        p = self.door.a.anchor + self.along * lateral - self.out * depth
+        return np.array([p[0], p[1], z])
+
+
+def opening(s: SceneState, fixture: str) -> Opening | None:
+    """The doorway of ``fixture`` (or of the fixture a region belongs to) if it has a door on
+    a vertical hinge; None otherwise (drawers, the stove's knob, open containers)."""
+    owner = _owner(s, fixture)
+    names = tuple(s.joints_of.get(fixture, ())) + tuple(s.joints_of.get(owner, ()))
+    for a in (s.articulations[n] for n in dict.fromkeys(names)):
+        if a.kind != "hinge" or abs(a.axis[2]) < 0.9 or not a.geoms:
+            continue
+        plate = max(a.geoms, key=lambda g: float(np.prod(g.half)))
+        if plate.hi[2] - plate.lo[2] < 0.05 or len(a.geoms) < 2:  # a knob, not a door
+            continue
+        d = _door(a)
+        shut = _openness(a)
+        leaf = max(_extent(g, d.along) for g in a.geoms) - float(a.anchor @ d.along)
+        return Opening(door=d, out=d.turned(d.push, shut), along=d.turned(d.along, shut), leaf=leaf,
+                       bottom=float(plate.lo[2]), top=float(plate.hi[2]))
+    return None
+
+
+def _box_corners(b) -> np.ndarray:
+    return np.array([[x, y, z] for x in (b.lo[0], b.hi[0]) for y in (b.lo[1], b.hi[1]) for z in (b.lo[2], b.hi[2])])
+
+
+def protrusion(o: Opening, b) -> float:
+    """How far the body's box sticks out of the doorway past the closed door's plane."""
+    return float(max(-o.depth(c) for c in _box_corners(b)))
+
+
+def _sticking_out(s: SceneState, o: Opening, fixture: str) -> str | None:
+    """An object put into the fixture (its origin inside the doorway) that the closing door
+    would hit: it still reaches out past the door's plane."""
+    worst, name = -PUSH_IN_MARGIN / 2, None
+    for n, b in s.bodies.items():
+        if n == fixture or o.depth(b.pos) <= 0 or not 0 < o.lateral(b.pos) < o.leaf:
+            continue
+        if not o.bottom - 0.03 < b.pos[2] < o.top:
+            continue
+        if protrusion(o, b) > worst:
+            worst, name = protrusion(o, b), n
+    return name
+
+
+def _push_in(s: SceneState, o: Opening, name: str, fixture: str) -> Step:
+    """Push an object deeper into the fixture until nothing of it sticks out of the doorway.
+
+    Closed fingers press on the object's outermost part, a little below its middle, across
+    the doorway, leaning into the fixture (like `close_drawer`): straight down, the hand's
+    upper part (it is 8 cm thick, and 10 cm tall above the fingers) would run into the
+    doorway's top edge before the fingers are past the door's plane."""
+    b = s.bodies[name]
+    out = protrusion(o, b)
+    lateral = o.lateral(b.center)
+    z = b.lo[2] + PUSH_IN_HEIGHT * b.size[2]
+    contact = o.point(lateral, -(out + FINGER_HALF), z)  # eef touching the outermost part
+    lean = _unit(DOWN * np.cos(DRAWER_TILT) - o.out * np.sin(DRAWER_TILT))
+    rel = s.eef_pos - contact
+    ahead, across = float(rel @ o.out), float(rel @ o.along)
+    push = out + PUSH_IN_MARGIN
+    if abs(across) < 0.02 and abs(rel[2]) < 0.015 and -push - 0.02 < ahead < 0.05:
+        return Step(_act(s, contact - o.out * push, CLOSE, o.along, lean, cap=PUSH_SPEED))
+    ready = contact + o.out * 0.03
+    return Step(_approach(s, ready, CLOSE, o.along, lean, o.door.a, b.hi[2], fixture))
+
+
 def close_door(s: SceneState, obj: str, goal: GoalAtom) -> Step:
     """Push the door shut along its arc with closed fingers on its face, near its top edge
-    (the hand passes just above the door), then back away."""
+    (the hand passes just above the door), then back away. Something put in that still
+    sticks out of the doorway (a mug's handle) is pushed in first."""
     d = _door(_joint(s, obj, want_open=False))
     a = d.a
     rel = s.eef_pos - a.anchor
     radial, off = rel @ d.along, rel @ d.push - d.face  # along the door; out from its face
     if s.facts.get(str(goal), False):
         return _back_off(s, d.push, off, FINGER_HALF + CLEARANCE)
+    o = opening(s, obj)
+    stuck = _sticking_out(s, o, _owner(s, obj)) if o is not None and _openness(a) > 0.3 else None
+    if stuck is not None:
+        return _push_in(s, o, stuck, _owner(s, obj))
+    if o is not None and o.depth(s.eef_pos) > -0.06 and s.eef_pos[2] < o.top - 0.05 and 0 < o.lateral(s.eef_pos) < o.leaf:
+        # Just pushed something in: straight back out of the doorway, low, straightening up
+        # (rising there, leaning, runs the hand into the doorway's top edge).
+        return Step(_act(s, s.eef_pos + o.out * (0.07 + o.depth(s.eef_pos)), CLOSE))
     z = d.top - HAND_ABOVE_EEF + 0.015  # hand just above the top edge, fingers on the face
     reach = d.radius - 0.07  # push point: well out along the door, clear of the handle
     lead = min(DOOR_LEAD, _openness(a) + 0.05)  # end pressing just past closed

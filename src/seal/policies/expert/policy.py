@@ -15,7 +15,7 @@ import numpy as np
 
 from seal.errors import InvalidInput
 from seal.policies.base import ACTION_HORIZON, PREDICT_HORIZON, ActionChunk, Reasoning
-from seal.policies.expert import skills
+from seal.policies.expert import skills, stow
 from seal.policies.expert.plan import SubPlan, category, decompose
 from seal.sim.goals import GoalAtom
 from seal.sim.observation import Observation
@@ -182,15 +182,34 @@ class ScriptedExpert:
 
     def _skill_step(self, sub: SubPlan, s: SceneState, attempt: _Attempt) -> skills.Step:
         if sub.skill == "pick":
-            return skills.pick(s, attempt.acting_on, attempt.knobs)
+            return skills.pick(s, attempt.acting_on, attempt.knobs, by_handle=self._stowing_next(sub, s, attempt))
         if sub.skill == "place":
-            return skills.place(s, sub.obj, attempt.target, attempt.knobs)
+            if stow.stowing(s, sub.obj, attempt.target) is not None:
+                return stow.place_inside(s, sub.obj, attempt.target, attempt.knobs)
+            return skills.place(s, sub.obj, attempt.target, attempt.knobs, slot=self._slot(sub, attempt))
         from seal.policies.expert.articulated import ARTICULATED_SKILLS
 
         fn = ARTICULATED_SKILLS.get(sub.skill)
         if fn is None:
             raise InvalidInput(f"no motion primitive for skill {sub.skill!r} ({sub.text!r}) in task {self.task}")
         return fn(s, sub.obj, sub.goal)
+
+    def _slot(self, sub: SubPlan, attempt: _Attempt) -> tuple[int, int] | None:
+        """(i, n): this is the i-th of n objects the plan puts on the same region."""
+        sharing = [p.obj for p in self._plans or [] if p.skill == "place" and p.target == sub.target]
+        # Containers (a basket) take several objects dropped in anywhere; a surface region
+        # (the stove's burner area) must not get them stacked.
+        if attempt.target != sub.target or sub.obj not in sharing or sub.target.endswith("contain_region"):
+            return None
+        return sharing.index(sub.obj), len(sharing)
+
+    def _stowing_next(self, sub: SubPlan, s: SceneState, attempt: _Attempt) -> bool:
+        """Whether the place after this pick goes through a doorway (then grasp by the handle)."""
+        plans = self._plans or []
+        nxt = next((plans[i + 1] for i, p in enumerate(plans[:-1]) if p is sub), None)
+        if nxt is None or nxt.skill != "place" or nxt.target is None:
+            return False
+        return stow.stowing(s, attempt.acting_on, nxt.target) is not None
 
 
 def progress(plans: list[SubPlan], scene: SceneState) -> list[bool]:

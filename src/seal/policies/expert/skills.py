@@ -51,6 +51,10 @@ ROUND = ("alphabet_soup", "tomato_sauce")
 # collision geoms. Unknown mugs fall back to the box centre (the rim grasp tolerates ~2 cm).
 CUP_OFFSET = {"porcelain_mug": (0.02, 0.0), "white_yellow_mug": (-0.017, 0.0)}
 WALL = 0.005  # half a cup wall: where the fingers centre on the rim
+SLOT_MARGIN = 0.015  # a shared region's outermost origins stay this far inside it
+SLOT_TOL = 0.008  # release tolerance (each of x, y) when placing into a slot of a shared region
+HANDLE_BAR = 0.01  # thickness of a mug handle's outer bar (radially), ~9 mm measured
+HANDLE_GRASP_HEIGHT = 0.62  # pinch a handle this far up the mug (fraction of its height): its upper bar
 
 
 @dataclass(frozen=True)
@@ -143,14 +147,58 @@ def _min_grasp_z(s: SceneState) -> float:
     return s.table_z + FINGERTIP_BELOW + TABLE_CLEARANCE
 
 
-def grasp_pose(s: SceneState, name: str, knobs: Knobs) -> tuple[np.ndarray, float]:
+def handle(name: str, body: Body) -> tuple[np.ndarray, float] | None:
+    """A mug's handle: (unit 2-vector from the cup axis toward the handle, distance from the
+    cup axis to the handle's outer face); None for an object without one.
+
+    The handle is what makes the bounding box longer one way (see `_rim_candidates`); it lies
+    on the side of that axis away from the cup (`CUP_OFFSET`)."""
+    if not any(k in name for k in CUP_OFFSET):
+        return None
+    ext = (body.local_hi - body.local_lo)[:2]
+    if abs(ext[0] - ext[1]) <= 0.15 * min(ext):
+        return None
+    ex, ey = _axes(body)
+    axis = ex if ext[0] > ext[1] else ey
+    cup = footprint_centre(name, body)
+    if (body.center[:2] - cup) @ axis < 0:
+        axis = -axis
+    corners = np.array([[x, y] for x in (body.lo[0], body.hi[0]) for y in (body.lo[1], body.hi[1])])
+    # The world box's corners overshoot a turned body; its local extent along the axis does not.
+    reach = min(float(np.max((corners - cup) @ axis)), float(max(ext)) - float(min(ext)) / 2)
+    return axis, reach
+
+
+def handle_grasp(s: SceneState, name: str) -> tuple[np.ndarray, float] | None:
+    """Pinch a mug's handle from above, across it, near its top: (eef point, finger yaw).
+
+    For putting a mug somewhere with a low ceiling (a microwave): held by the rim, the hand
+    sits over the cup and cannot follow it under the roof; held by the handle, with the
+    hand's long side across the handle, the hand stays outside while the cup goes in first.
+    The pads close on the handle's outer bar (a few millimetres thick)."""
+    body = s.bodies[name]
+    h = handle(name, body)
+    if h is None:
+        return None
+    axis, reach = h
+    xy = footprint_centre(name, body) + axis * (reach - HANDLE_BAR / 2)
+    z = max(body.lo[2] + HANDLE_GRASP_HEIGHT * body.size[2], _min_grasp_z(s))
+    return np.array([*xy, z]), float(np.arctan2(axis[0], -axis[1]))  # finger axis across the handle
+
+
+def grasp_pose(s: SceneState, name: str, knobs: Knobs, by_handle: bool = False) -> tuple[np.ndarray, float]:
     """Where the gripper centre goes to grasp ``name``, and the finger-axis yaw to use.
 
     Of a few candidate grasps (both rim sides; shifts along the finger axis within the slack
     the open fingers leave; the other side of a box if it fits), the one whose open hand
     overlaps other objects least wins, so the hand does not land on a neighbour's rim.
+    ``by_handle``: a mug by its handle (`handle_grasp`), if it has one.
     """
     body = s.bodies[name]
+    by_handle = handle_grasp(s, name) if by_handle else None
+    if by_handle is not None:
+        point, yaw = by_handle
+        return point + knobs.grasp_offset, yaw
     if _is_rim(name):
         candidates = _rim_candidates(s, name, body)
     elif _is_round(name):
@@ -239,6 +287,11 @@ def _rim_candidates(s: SceneState, name: str, body: Body) -> list[tuple[np.ndarr
         radial = ey if ext[0] > ext[1] else ex  # perpendicular to the handle axis
     else:
         radial = s.eef_pos[:2] - cup
+        if np.linalg.norm(radial) < min(ext) / 4:  # well inside the rim (a grasp point sits on it)
+            # The hand is over the bowl: the direction to it is ill-defined and swings with
+            # every centimetre the hand moves (the target yaw then flips between half-turn
+            # twins within one chunk and the wrist stalls). Pinch along the current finger axis.
+            radial = s.finger_axis[:2].copy()
         radial = radial / (np.linalg.norm(radial) + 1e-9)
     radius = min(ext) / 2
     z = max(body.hi[2] - min(0.02, 0.5 * body.size[2]), _min_grasp_z(s))
@@ -250,11 +303,12 @@ def _rim_candidates(s: SceneState, name: str, body: Body) -> list[tuple[np.ndarr
     return out
 
 
-def pick(s: SceneState, name: str, knobs: Knobs) -> Step:
+def pick(s: SceneState, name: str, knobs: Knobs, by_handle: bool = False) -> Step:
     body = s.bodies[name]
     if s.facts.get(f"Grasped({name})", False):
         return _lift(s, body)
-    point, yaw = grasp_pose(s, name, knobs)
+    by_handle = by_handle and handle(name, body) is not None
+    point, yaw = grasp_pose(s, name, knobs, by_handle)
     yaw_err = _yaw_error(s, yaw)
     err = point - s.eef_pos
     xy_err = float(np.linalg.norm(err[:2]))
@@ -262,7 +316,7 @@ def pick(s: SceneState, name: str, knobs: Knobs) -> Step:
     # grasps only a fully shut gripper counts as a miss (the Grasped fact follows shortly).
     # A box or can is held across its full width: fingers closed well past it without a
     # grasp pinched only an edge or a corner (or closed on nothing).
-    empty = RIM_EMPTY_WIDTH if _is_rim(name) else max(EMPTY_WIDTH, _grip_width(name, body, yaw) - 0.005)
+    empty = RIM_EMPTY_WIDTH if _is_rim(name) or by_handle else max(EMPTY_WIDTH, _grip_width(name, body, yaw) - 0.005)
     # At the grasp point (a flat object's pads must come fully down, or they pass over it);
     # or a little above it with the pads already well down the object's sides, where rubbing
     # fingers can stall the last millimetres of the descent.
@@ -352,10 +406,53 @@ def _placed(s: SceneState, obj: str, target: str) -> bool:
     return s.facts.get(f"In({obj}, {target})", False) or s.facts.get(f"On({obj}, {target})", False)
 
 
-def place(s: SceneState, obj: str, target: str, knobs: Knobs) -> Step:
+def slot_point(s: SceneState, obj: str, target: str, slot: tuple[int, int]) -> np.ndarray:
+    """Where the origin of the ``slot[0]``-th of ``slot[1]`` objects sharing one region goes.
+
+    Aimed at the centre, the second moka pot lands on the first and topples. So the objects
+    are lined up along the region's axis with the most room to spare for them, each origin
+    kept inside the region (LIBERO tests origins) by a margin; the first goes farthest from
+    the robot, so later ones are not carried over it."""
+    i, n = slot
+    site = s.sites[target]
+    half = (np.abs(site.xmat) @ site.size)[:2]
+    axis = _slot_axis(s, target)
+    usable = max(half[axis] - SLOT_MARGIN, 0.0)
+    step = np.linspace(usable, -usable, n)[i]  # +x is away from the robot's base
+    xy = site.pos[:2].copy()
+    xy[axis] += step
+    return xy
+
+
+def _slot_axis(s: SceneState, target: str) -> int:
+    """The world axis (0: x, 1: y) a shared region's slots line up along: its longer side
+    (x if square). Fixed by the region alone, so that every object gets the same answer
+    whatever way round it is held."""
+    site = s.sites[target]
+    half = (np.abs(site.xmat) @ site.size)[:2]
+    return 1 if half[1] > half[0] + 1e-6 else 0
+
+
+def _slot_yaw(s: SceneState, obj: str, target: str) -> float:
+    """The finger yaw that turns the held object's narrow side along the slots' axis (the
+    current yaw for an object about as wide as long)."""
+    body = s.bodies[obj]
+    ext = (body.local_hi - body.local_lo)[:2]
+    now = _finger_yaw(s)
+    if abs(ext[0] - ext[1]) < 0.15 * min(ext):
+        return now
+    narrow = body.yaw + (0.0 if ext[0] <= ext[1] else np.pi / 2)
+    want = 0.0 if _slot_axis(s, target) == 0 else np.pi / 2
+    return now + _wrap(want - narrow)
+
+
+def place(s: SceneState, obj: str, target: str, knobs: Knobs, slot: tuple[int, int] | None = None) -> Step:
     body = s.bodies[obj]
     grasped = s.facts.get(f"Grasped({obj})", False)
     xy, bottom = place_point(s, obj, target)
+    slot = slot if slot is not None and slot[1] > 1 and target in s.sites else None
+    if slot is not None:
+        xy = np.array([*slot_point(s, obj, target, slot), 0.0])
     if not grasped:
         # Released (or dropped): back off upwards, then hand back to thinking.
         if s.gripper_width < OPEN_WIDTH:
@@ -369,7 +466,8 @@ def place(s: SceneState, obj: str, target: str, knobs: Knobs) -> Step:
     # centimetres off the hand.
     below = s.eef_pos[2] - body.lo[2]  # how far the object hangs below the gripper centre
     release_z = bottom + below + knobs.release_early
-    goal, yaw = _release_pose(s, obj, target, xy[:2], release_z)
+    goal, yaw = _release_pose(s, obj, target, xy[:2], release_z,
+                              yaws=None if slot is None else (_slot_yaw(s, obj, target),))
     off = goal - body.pos[:2]
     goal_xy = s.eef_pos[:2] + off
     yaw_err = _yaw_error(s, yaw)
@@ -386,6 +484,8 @@ def place(s: SceneState, obj: str, target: str, knobs: Knobs) -> Step:
     if _placed(s, obj, target) and knobs.release_early == 0:
         return Step(hold(OPEN))  # already counts as placed (e.g. resting on the rim): let go
     tol = _release_tolerance(s, obj, target)
+    if slot is not None:  # slots are as far apart as the region allows: no slack to spare
+        tol = np.minimum(tol, SLOT_TOL)
     # Off-centre, the object's bottom stays above everything near its way to the goal (a
     # basket's rim, a compartment's walls), so it cannot catch on an edge; once down there,
     # a little more drift (a swinging load) is settled in place instead of rising again.
@@ -396,6 +496,17 @@ def place(s: SceneState, obj: str, target: str, knobs: Knobs) -> Step:
     if s.eef_pos[2] - release_z > Z_TOL or np.any(np.abs(off) > tol):
         return Step(carry(s.eef_pos, np.array([*goal_xy, release_z]), yaw_err))
     return Step(hold(OPEN))
+
+
+def _holder(s: SceneState, target: str) -> str | None:
+    """The fixture or object a region belongs to (a cabinet, a basket), None for a table region."""
+    owner = max((n for n in s.bodies if target.startswith(n + "_")), key=len, default=None)
+    return None if owner is None or owner.endswith("_table") else owner
+
+
+def _footprint(body: Body) -> np.ndarray:
+    """World-frame (x, y) extent of an upright object, whatever its yaw: its widest horizontal side."""
+    return np.full(2, float(np.max(body.local_hi[:2] - body.local_lo[:2])))
 
 
 def _release_tolerance(s: SceneState, obj: str, target: str) -> np.ndarray:
@@ -416,26 +527,31 @@ def _release_tolerance(s: SceneState, obj: str, target: str) -> np.ndarray:
     return tol
 
 
-def _release_pose(s: SceneState, obj: str, target: str, xy: np.ndarray, release_z: float) -> tuple[np.ndarray, float]:
+def _release_pose(s: SceneState, obj: str, target: str, xy: np.ndarray, release_z: float,
+                  yaws: tuple[float, ...] | None = None) -> tuple[np.ndarray, float]:
     """Where the object's origin goes and the finger yaw to hold, so the hand clears neighbours.
 
     Candidates: the current yaw or a world-aligned one (the held object turns with the hand),
     and, for a free table region, spots within it. The least intrusion of the open hand at
     the release point wins. Turning costs enough that only a real obstruction justifies it:
     large wrist turns on top of the grasp's own turn can run the last joint into its limit,
-    where the arm stalls.
+    where the arm stalls. ``yaws``: only these yaws, at ``xy`` itself (a slot of a shared region).
     """
     body = s.bodies[obj]
     now = _finger_yaw(s)
     hang = body.pos[:2] - s.eef_pos[:2]  # the object's origin relative to the hand
     spots = [(xy, 0.0)]
-    if target in s.sites and not target.endswith("contain_region"):
+    if yaws is None and target in s.sites and not target.endswith("contain_region"):
         site = s.sites[target]
         half = (np.abs(site.xmat) @ site.size)[:2] - 0.02
+        if _holder(s, target) is not None:
+            # Inside a fixture (a drawer, a shelf): the whole object must fit, not just its origin,
+            # or it lands on a wall and tilts (a tilted bowl then jams the drawer).
+            half = (np.abs(site.xmat) @ site.size)[:2] - _footprint(body) / 2 - 0.01
         spots += [(xy + np.array([dx, dy]) * np.maximum(half, 0.0), 0.02)
                   for dx in (-1, 0, 1) for dy in (-1, 0, 1) if dx or dy]
     best, best_cost = (xy, now), np.inf
-    for yaw in (now, 0.0, np.pi / 2, np.pi / 4, -np.pi / 4):
+    for yaw in yaws or (now, 0.0, np.pi / 2, np.pi / 4, -np.pi / 4):
         turn = _yaw_error(s, yaw)
         c, si = np.cos(turn), np.sin(turn)
         turned = np.array([c * hang[0] - si * hang[1], si * hang[0] + c * hang[1]])

@@ -1,0 +1,61 @@
+"""`seal bench eval`: how fast the evaluation harness turns trials into rows on this machine.
+
+- trials_per_hour_base / _seal: full episodes (misaligned scripted expert, oracle verifier,
+  K=10 for seal) through the local backend with ``--workers`` processes, end to end (pool
+  builds, videos off, store writes included).
+- harness_overhead_s: per trial, everything but stepping, the policy and waiting for verdicts
+  (the steerer's own timers), i.e. what the harness adds: pool building, resets, observation
+  round trips, traces, IPC, the store.
+- ray_vs_local: throughput of the Ray backend over the local backend on the same base trials,
+  2 workers each (a ratio within one run, since this machine is shared and noisy).
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+
+from seal.eval.execute import RunOptions
+from seal.eval.runner import run_eval
+from seal.eval.store import ResultStore
+from seal.eval.trials import MethodSpec
+
+
+def _timed_run(db: Path, methods, suite, tasks, trials, options, **kw) -> tuple[float, list]:
+    t0 = time.perf_counter()
+    run_eval(str(db), methods, [suite], tasks, trials, options=options, **kw)
+    elapsed = time.perf_counter() - t0
+    with ResultStore(db) as store:
+        return elapsed, store.rows()
+
+
+def run(args) -> dict:
+    suite = args.suite
+    tasks = [int(t) for t in args.tasks.split(",")] if args.tasks else [0]
+    trials = args.trials if args.trials != 50 else 3  # 50 is `bench`'s shared default; keep this one short
+    workers = args.workers or 1
+    out: dict = {"suite": suite, "tasks": tasks, "trials_per_task": trials, "workers": workers, "k": args.k}
+    with tempfile.TemporaryDirectory(prefix="seal-bench-eval-") as tmp:
+        tmp = Path(tmp)
+        options = RunOptions(out_dir=str(tmp / "runs"), video="none", grids=False, pool_workers=1)
+        overheads = []
+        for method in (MethodSpec(method="base"), MethodSpec(method="seal", k=args.k, verifier="oracle")):
+            elapsed, rows = _timed_run(tmp / f"{method.method}.db", [method], suite, tasks, trials,
+                                       replace(options, pool_workers=1 if method.method == "base" else 2), workers=workers)
+            n = len(rows)
+            out[f"trials_per_hour_{method.method}"] = round(3600 * n / elapsed, 1)
+            out[f"success_{method.method}"] = round(sum(r.success for r in rows) / n, 3)
+            out[f"mean_steps_{method.method}"] = round(sum(r.steps for r in rows) / n, 1)
+            busy = sum(r.step_s + r.policy_s + r.verify_wait_s for r in rows)
+            overheads.append((elapsed * workers - busy) / n)
+            out[f"harness_overhead_s_{method.method}"] = round(overheads[-1], 2)
+        out["harness_overhead_s"] = round(sum(overheads) / len(overheads), 2)
+        base = [MethodSpec(method="base")]
+        t_local, _ = _timed_run(tmp / "local2.db", base, suite, tasks, max(trials, 4), options, workers=2)
+        t_ray, _ = _timed_run(tmp / "ray2.db", base, suite, tasks, max(trials, 4), options, workers=2,
+                              backend="ray")
+        out["local_2w_s"], out["ray_2w_s"] = round(t_local, 1), round(t_ray, 1)
+        out["ray_vs_local"] = round(t_local / t_ray, 3)
+    return out

@@ -1,0 +1,66 @@
+"""`seal eval`: methods x suites x tasks x trials into the results store, resumable.
+
+The run is the set of trial keys the command describes; the store holds the finished ones.
+Re-running the same command therefore runs exactly what is missing. Rows are committed one by
+one as trials finish, so Ctrl-C or a crash loses only the trials in flight.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass, field, replace
+from typing import Callable
+
+from seal.eval.backends import make_backend
+from seal.eval.execute import RunOptions
+from seal.eval.store import ResultStore, TrialRow
+from seal.eval.trials import MethodSpec, TrialSpec, expand
+
+
+@dataclass
+class EvalSummary:
+    db: str
+    planned: int = 0
+    already_done: int = 0
+    ran: int = 0
+    errors: int = 0
+    success: dict = field(default_factory=dict)  # method label -> fraction over this command's trials
+    trials: dict = field(default_factory=dict)  # method label -> finished trials of this command
+
+
+def plan_eval(store: ResultStore, methods: list[MethodSpec], suites: list[str], tasks: list[int] | None,
+              trials: int) -> tuple[list[TrialSpec], list[TrialSpec]]:
+    """(all trials of the command, the ones still to run)."""
+    every = expand(methods, suites, tasks, trials)
+    done = store.done_keys()
+    return every, [t for t in every if t.key not in done]
+
+
+def run_eval(db: str, methods: list[MethodSpec], suites: list[str], tasks: list[int] | None, trials: int, *,
+             options: RunOptions, backend: str = "local", workers: int = 1, address: str | None = None,
+             on_row: Callable[[TrialRow, int, int], None] | None = None) -> EvalSummary:
+    with ResultStore(db) as store:
+        every, todo = plan_eval(store, methods, suites, tasks, trials)
+        for m in methods:
+            store.register_method(m.config_hash, m.label, m.canonical())
+        summary = EvalSummary(db=str(db), planned=len(every), already_done=len(every) - len(todo))
+        options = replace(options, pool_k=max(m.effective_k for m in methods))
+        runner = make_backend(backend, options, workers, address) if todo else None
+        try:
+            for row in (runner.run(todo) if runner else ()):
+                store.add(row)
+                summary.ran += 1
+                summary.errors += row.status == "error"
+                if on_row:
+                    on_row(row, summary.ran, len(todo))
+        finally:
+            if runner is not None and hasattr(runner, "shutdown"):
+                runner.shutdown()
+        keys = {t.key for t in every}
+        per = defaultdict(list)
+        for row in store.rows():
+            if row.key in keys:
+                per[row.method].append(row.success)
+        summary.success = {m: round(sum(v) / len(v), 4) for m, v in per.items()}
+        summary.trials = {m: len(v) for m, v in per.items()}
+    return summary

@@ -1,0 +1,243 @@
+"""The results store: one SQLite row per finished trial, written the moment it finishes.
+
+Why SQLite: one file a person can copy, query with any tool and merge; atomic commits mean a
+run killed mid-write loses at most the trial in flight, and the primary key makes resuming
+exact (a finished trial is never run or stored twice).
+
+The store refuses files it did not create (a foreign or corrupted database is never touched),
+and refuses a newer schema than it knows.
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import time
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+
+from seal.errors import InvalidInput
+
+SCHEMA_VERSION = 2  # v2 added trials.policy_s
+MAGIC = "seal-results"
+
+_SCHEMA = """
+CREATE TABLE seal_meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE methods (
+    config_hash TEXT PRIMARY KEY,
+    method TEXT NOT NULL,
+    config_json TEXT NOT NULL
+);
+CREATE TABLE trials (
+    method TEXT NOT NULL,
+    config_hash TEXT NOT NULL REFERENCES methods(config_hash),
+    suite TEXT NOT NULL,
+    task INTEGER NOT NULL,
+    trial INTEGER NOT NULL,
+    init_index INTEGER NOT NULL,
+    seed INTEGER NOT NULL,
+    status TEXT NOT NULL CHECK (status IN ('ok', 'error')),
+    success INTEGER NOT NULL,
+    steps INTEGER NOT NULL,
+    sim_error INTEGER NOT NULL,
+    wall_s REAL NOT NULL,
+    step_s REAL NOT NULL,
+    policy_s REAL NOT NULL,
+    verify_wait_s REAL NOT NULL,
+    verifier_calls INTEGER NOT NULL,
+    input_tokens INTEGER NOT NULL,
+    output_tokens INTEGER NOT NULL,
+    cost_usd REAL NOT NULL,
+    rounds INTEGER NOT NULL,
+    fallbacks INTEGER NOT NULL,
+    subplans_json TEXT NOT NULL,
+    goal_status_json TEXT NOT NULL,
+    trace_path TEXT NOT NULL,
+    video_path TEXT NOT NULL,
+    error TEXT NOT NULL,
+    worker TEXT NOT NULL,
+    finished_at REAL NOT NULL,
+    PRIMARY KEY (config_hash, suite, task, trial)
+);
+"""
+
+
+@dataclass
+class TrialRow:
+    """One finished trial. ``status='error'`` rows carry the traceback in ``error`` and count
+    as failures in reports; ``sim_error`` marks episodes the simulator itself broke."""
+
+    method: str
+    config_hash: str
+    suite: str
+    task: int
+    trial: int
+    init_index: int
+    seed: int
+    status: str = "ok"
+    success: bool = False
+    steps: int = 0
+    sim_error: bool = False
+    wall_s: float = 0.0
+    step_s: float = 0.0  # time in simulator stepping (prediction), from the steerer's timing
+    policy_s: float = 0.0  # time in the policy (sampling actions and reasoning)
+    verify_wait_s: float = 0.0  # time spent waiting for verdicts
+    verifier_calls: int = 0
+    input_tokens: int = 0
+    output_tokens: int = 0
+    cost_usd: float = 0.0
+    rounds: int = 0
+    fallbacks: int = 0
+    subplans: list = field(default_factory=list)
+    goal_status: dict = field(default_factory=dict)
+    trace_path: str = ""
+    video_path: str = ""
+    error: str = ""
+    worker: str = ""
+    finished_at: float = 0.0
+
+    @property
+    def key(self) -> tuple[str, str, int, int]:
+        return (self.config_hash, self.suite, self.task, self.trial)
+
+
+_COLUMNS = [f.name for f in fields(TrialRow) if f.name not in ("subplans", "goal_status")] + \
+    ["subplans_json", "goal_status_json"]
+
+
+class ResultStore:
+    """Open (or create) a results database. Use as a context manager or call ``close``."""
+
+    def __init__(self, path: str | Path, *, create: bool = True):
+        self.path = Path(path)
+        exists = self.path.exists() and self.path.stat().st_size > 0
+        if not exists and not create:
+            raise InvalidInput(f"no results database at {self.path}")
+        if exists:
+            _check_header(self.path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._db = sqlite3.connect(self.path, timeout=30, isolation_level=None)
+        try:
+            if exists:
+                self._check_meta()
+            else:
+                self._create()
+        except BaseException:
+            self._db.close()
+            raise
+
+    # ---- lifecycle ------------------------------------------------------------------------
+    def _create(self) -> None:
+        with self._tx():
+            for stmt in filter(None, (s.strip() for s in _SCHEMA.split(";"))):
+                self._db.execute(stmt)
+            self._db.execute("INSERT INTO seal_meta VALUES ('magic', ?), ('schema_version', ?), ('created', ?)",
+                             (MAGIC, str(SCHEMA_VERSION), time.strftime("%Y-%m-%dT%H:%M:%S")))
+        self._db.execute("PRAGMA journal_mode=WAL")
+
+    def _check_meta(self) -> None:
+        try:
+            meta = dict(self._db.execute("SELECT key, value FROM seal_meta").fetchall())
+        except sqlite3.DatabaseError as exc:  # no such table, malformed file...
+            raise InvalidInput(f"{self.path} is not a SEAL results database ({exc}); "
+                               "pass a new file name or one written by `seal eval`") from None
+        if meta.get("magic") != MAGIC:
+            raise InvalidInput(f"{self.path} is not a SEAL results database (no {MAGIC!r} marker)")
+        version = int(meta.get("schema_version", "0"))
+        if version > SCHEMA_VERSION:
+            raise InvalidInput(f"{self.path} has results schema v{version}; this seal reads up to "
+                               f"v{SCHEMA_VERSION} (upgrade seal)")
+        try:
+            self._db.execute("PRAGMA quick_check").fetchone()
+        except sqlite3.DatabaseError as exc:
+            raise InvalidInput(f"{self.path} is corrupted ({exc}); it was left untouched") from None
+        if version < SCHEMA_VERSION:
+            self._migrate(version)
+
+    def _migrate(self, version: int) -> None:
+        """Bring an older database of ours up to date, in one transaction."""
+        with self._tx():
+            if version < 2:
+                self._db.execute("ALTER TABLE trials ADD COLUMN policy_s REAL NOT NULL DEFAULT 0")
+            self._db.execute("UPDATE seal_meta SET value = ? WHERE key = 'schema_version'", (str(SCHEMA_VERSION),))
+
+    def close(self) -> None:
+        self._db.close()
+
+    def __enter__(self) -> "ResultStore":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _tx(self):
+        return _Transaction(self._db)
+
+    # ---- writing --------------------------------------------------------------------------
+    def register_method(self, config_hash: str, method: str, config: dict) -> None:
+        """Remember what a config hash means, so reports can show it."""
+        with self._tx():
+            self._db.execute("INSERT OR IGNORE INTO methods VALUES (?, ?, ?)",
+                             (config_hash, method, json.dumps(config, sort_keys=True)))
+
+    def add(self, row: TrialRow) -> bool:
+        """Store a finished trial; returns False (and stores nothing) if it is already there."""
+        values = asdict(row)
+        values["subplans_json"] = json.dumps(values.pop("subplans"))
+        values["goal_status_json"] = json.dumps(values.pop("goal_status"))
+        values["success"], values["sim_error"] = int(bool(row.success)), int(bool(row.sim_error))
+        values["finished_at"] = values["finished_at"] or time.time()
+        with self._tx():
+            cur = self._db.execute(
+                f"INSERT OR IGNORE INTO trials ({', '.join(_COLUMNS)}) VALUES ({', '.join('?' * len(_COLUMNS))})",
+                [values[c] for c in _COLUMNS])
+        return cur.rowcount == 1
+
+    # ---- reading --------------------------------------------------------------------------
+    def done_keys(self) -> set[tuple[str, str, int, int]]:
+        return {tuple(r) for r in self._db.execute("SELECT config_hash, suite, task, trial FROM trials")}
+
+    def rows(self, *, suite: str | None = None, method: str | None = None) -> list[TrialRow]:
+        sql, args = f"SELECT {', '.join(_COLUMNS)} FROM trials", []
+        where = [(c, v) for c, v in (("suite", suite), ("method", method)) if v is not None]
+        if where:
+            sql += " WHERE " + " AND ".join(f"{c} = ?" for c, _ in where)
+            args = [v for _, v in where]
+        out = []
+        for rec in self._db.execute(sql + " ORDER BY suite, task, method, trial", args):
+            d = dict(zip(_COLUMNS, rec))
+            d["subplans"] = json.loads(d.pop("subplans_json"))
+            d["goal_status"] = json.loads(d.pop("goal_status_json"))
+            d["success"], d["sim_error"] = bool(d["success"]), bool(d["sim_error"])
+            out.append(TrialRow(**d))
+        return out
+
+    def methods(self) -> dict[str, tuple[str, dict]]:
+        """config hash -> (method name, config)."""
+        return {h: (m, json.loads(c)) for h, m, c in self._db.execute("SELECT * FROM methods")}
+
+    def count(self) -> int:
+        return self._db.execute("SELECT COUNT(*) FROM trials").fetchone()[0]
+
+
+class _Transaction:
+    """BEGIN IMMEDIATE ... COMMIT, rolled back on error (autocommit connection)."""
+
+    def __init__(self, db: sqlite3.Connection):
+        self.db = db
+
+    def __enter__(self):
+        self.db.execute("BEGIN IMMEDIATE")
+        return self.db
+
+    def __exit__(self, exc_type, *_):
+        self.db.execute("ROLLBACK" if exc_type else "COMMIT")
+
+
+def _check_header(path: Path) -> None:
+    """Refuse a file that is not SQLite at all before sqlite3 gets a chance to touch it."""
+    with open(path, "rb") as f:
+        head = f.read(16)
+    if head != b"SQLite format 3\x00":
+        raise InvalidInput(f"{path} is not a SQLite file (a SEAL results database is); it was left untouched. "
+                           "Pass a new file name or one written by `seal eval`.")

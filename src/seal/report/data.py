@@ -1,0 +1,181 @@
+"""A results database read once into what every report part needs: methods in a stable order,
+per-cell counts, paired outcomes and the trial files on disk.
+
+Error trials (``status='error'``: the harness caught a crash) count as failures everywhere, as they
+would for a robot that crashed mid-task; they are also listed separately so nobody mistakes a
+broken run for a bad method.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import re
+from collections import defaultdict
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+from seal.errors import InvalidInput
+from seal.eval.store import ResultStore, TrialRow
+from seal.report.stats import wilson
+
+SUITE_ORDER = ("libero_10", "lang_rephrase", "lang_object_property", "visual_scene", "visual_viewpoint",
+               "composition")
+METHOD_ORDER = ("base", "random", "value", "seal")
+# The visual suites change the scene, not the words: their instructions are LIBERO-10's.
+INSTRUCTIONS_FROM = {"visual_scene": "libero_10", "visual_viewpoint": "libero_10"}
+
+
+@dataclass(frozen=True)
+class MethodInfo:
+    """One method configuration (a column of the tables)."""
+
+    config_hash: str
+    label: str
+    config: dict
+
+    @property
+    def method(self) -> str:
+        return str(self.config.get("method") or self.label.split("[")[0])
+
+    @property
+    def k(self) -> int:
+        """Candidates per sub-plan; base runs one."""
+        return 1 if self.method == "base" else int(self.config.get("k", 1))
+
+    @property
+    def family(self) -> str:
+        """The label without K: configs that differ only in K form one line in runtime-vs-K plots."""
+        name, _, rest = self.label.partition("[")
+        extra = [item for item in rest.rstrip("]").split(",") if item and not re.fullmatch(r"k=\d+", item)]
+        return name + (f"[{','.join(extra)}]" if extra else "")
+
+
+@dataclass
+class Cell:
+    """Trials of one method on one task (or pooled over a suite)."""
+
+    n: int = 0
+    successes: int = 0
+    errors: int = 0
+    sim_errors: int = 0
+
+    def add(self, row: TrialRow) -> None:
+        self.n += 1
+        self.successes += int(succeeded(row))
+        self.errors += row.status == "error"
+        self.sim_errors += bool(row.sim_error)
+
+    @property
+    def rate(self) -> float:
+        return self.successes / self.n if self.n else math.nan
+
+    @property
+    def ci(self) -> tuple[float, float]:
+        return wilson(self.successes, self.n)
+
+
+def succeeded(row: TrialRow) -> bool:
+    return bool(row.success) and row.status == "ok"
+
+
+class ReportData:
+    """Everything the report reads from one results database."""
+
+    def __init__(self, db: str | Path, *, runs_dir: str | Path | None = None):
+        self.db_path = Path(db)
+        with ResultStore(self.db_path, create=False) as store:
+            self.rows = store.rows()
+            registered = store.methods()
+        if not self.rows:
+            raise InvalidInput(f"{self.db_path} holds no finished trials yet; run `seal eval` first")
+        self.runs_dir = Path(runs_dir) if runs_dir else Path(str(self.db_path.with_suffix("")) + "_runs")
+        self.methods = _method_list(self.rows, registered)
+        self.by_hash = {m.config_hash: m for m in self.methods}
+        self.suites = sorted({r.suite for r in self.rows},
+                             key=lambda s: (SUITE_ORDER.index(s) if s in SUITE_ORDER else len(SUITE_ORDER), s))
+        self._cells: dict[tuple[str, int, str], Cell] = defaultdict(Cell)
+        self._outcome: dict[tuple[str, str, int, int], bool] = {}
+        for r in self.rows:
+            self._cells[(r.suite, r.task, r.config_hash)].add(r)
+            self._outcome[(r.config_hash, r.suite, r.task, r.trial)] = succeeded(r)
+        self.instructions = _instructions()
+
+    # ---- layout ----------------------------------------------------------------------------
+    def tasks(self, suite: str) -> list[int]:
+        return sorted({r.task for r in self.rows if r.suite == suite})
+
+    def methods_in(self, suite: str | None = None) -> list[MethodInfo]:
+        present = {r.config_hash for r in self.rows if suite is None or r.suite == suite}
+        return [m for m in self.methods if m.config_hash in present]
+
+    def instruction(self, suite: str, task: int) -> str:
+        return self.instructions.get((INSTRUCTIONS_FROM.get(suite, suite), task), "")
+
+    # ---- counts ----------------------------------------------------------------------------
+    def cell(self, suite: str, task: int, config_hash: str) -> Cell:
+        return self._cells.get((suite, task, config_hash), Cell())
+
+    def pooled(self, config_hash: str, suite: str | None = None) -> Cell:
+        """All trials of a method in a suite (or everywhere): the 'Average' row."""
+        out = Cell()
+        for r in self.rows:
+            if r.config_hash == config_hash and (suite is None or r.suite == suite):
+                out.add(r)
+        return out
+
+    def pairs(self, hash_a: str, hash_b: str, suite: str | None = None) -> list[tuple[bool, bool]]:
+        """(A succeeded, B succeeded) on every (suite, task, trial) both methods ran: the same
+        init state and seed, so the comparison is paired."""
+        out = []
+        for (h, s, task, trial), ok in sorted(self._outcome.items()):
+            if h != hash_a or (suite is not None and s != suite):
+                continue
+            other = self._outcome.get((hash_b, s, task, trial))
+            if other is not None:
+                out.append((ok, other))
+        return out
+
+    def errors(self) -> list[TrialRow]:
+        return [r for r in self.rows if r.status == "error"]
+
+    # ---- files -----------------------------------------------------------------------------
+    def resolve(self, stored: str) -> Path | None:
+        """A trial file as stored, or the same file under ``runs_dir`` if the run directory was
+        moved or copied (stored paths end in suite/task/method-hash/trialNNN/<file>)."""
+        if not stored:
+            return None
+        path = Path(stored)
+        if path.exists():
+            return path
+        parts = path.parts
+        for tail in (5, 6):  # trace.jsonl / episode.mp4 (5 parts), grids/<png> (6 parts)
+            if len(parts) >= tail:
+                moved = self.runs_dir.joinpath(*parts[-tail:])
+                if moved.exists():
+                    return moved
+        return None
+
+
+def _method_list(rows: list[TrialRow], registered: dict[str, tuple[str, dict]]) -> list[MethodInfo]:
+    seen: dict[str, MethodInfo] = {}
+    for r in rows:
+        if r.config_hash not in seen:
+            label, config = registered.get(r.config_hash, (r.method, {"method": r.method.split("[")[0]}))
+            seen[r.config_hash] = MethodInfo(r.config_hash, label, config)
+    labels = [m.label for m in seen.values()]
+    out = []
+    for m in seen.values():  # two configs with one label would make ambiguous columns
+        out.append(m if labels.count(m.label) == 1 else MethodInfo(m.config_hash, f"{m.label}#{m.config_hash[:6]}", m.config))
+
+    def order(m: MethodInfo):
+        rank = METHOD_ORDER.index(m.method) if m.method in METHOD_ORDER else len(METHOD_ORDER)
+        return (rank, m.family, m.k, m.label)
+
+    return sorted(out, key=order)
+
+
+def _instructions() -> dict[tuple[str, int], str]:
+    text = (resources.files("seal") / "data" / "instructions.csv").read_text()
+    return {(rec["suite"], int(rec["task_id"])): rec["instruction"] for rec in csv.DictReader(text.splitlines())}

@@ -1,0 +1,103 @@
+"""PNG plots with matplotlib's object API (Figure + Agg canvas): no pyplot, so no global figure
+state and no display backend is ever touched, which matters in worker processes and on CI."""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from pathlib import Path
+
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from seal.report.data import Cell, ReportData
+from seal.report.paper import paper_method_for
+from seal.report.tables import RuntimeRow, SuccessTable
+
+
+def _errorbars(cells: list[Cell]) -> tuple[list[float], list[list[float]]]:
+    """Heights in percent and matplotlib's asymmetric [below, above] error lengths."""
+    heights, below, above = [], [], []
+    for c in cells:
+        if c.n == 0:
+            heights.append(0.0), below.append(0.0), above.append(0.0)
+            continue
+        lo, hi = c.ci
+        heights.append(100 * c.rate)
+        below.append(100 * (c.rate - lo))
+        above.append(100 * (hi - c.rate))
+    return heights, [below, above]
+
+
+def success_plot(data: ReportData, tables: list[SuccessTable], path: Path) -> Path:
+    """Grouped bars: pooled success per suite (groups) and method (bars), Wilson 95% error bars;
+    the paper's average for the matching method as a white diamond on the bar."""
+    methods = data.methods
+    fig = Figure(figsize=(max(6.0, 1.2 * len(tables) * max(1, len(methods)) * 0.6 + 2), 4.2), dpi=110)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    width = 0.8 / max(1, len(methods))
+    for j, m in enumerate(methods):
+        xs, cells, paper_x, paper_y = [], [], [], []
+        for i, st in enumerate(tables):
+            if m not in st.methods:
+                continue
+            x = i - 0.4 + width * (j + 0.5)
+            xs.append(x)
+            cells.append(st.cells["average"][st.methods.index(m)])
+            pm = paper_method_for(m.config)
+            if pm in st.paper_methods and st.paper["average"][st.paper_methods.index(pm)] is not None:
+                paper_x.append(x)
+                paper_y.append(st.paper["average"][st.paper_methods.index(pm)])
+        heights, err = _errorbars(cells)
+        ax.bar(xs, heights, width * 0.92, yerr=err, capsize=3, label=m.label)
+        if paper_x:
+            # White with a black edge: visible both above a bar and inside it.
+            ax.scatter(paper_x, paper_y, marker="D", s=30, facecolors="white", edgecolors="black",
+                       linewidths=1.2, zorder=3)
+    if any(st.paper_methods for st in tables):
+        ax.scatter([], [], marker="D", facecolors="white", edgecolors="black", label="paper (same method)")
+    ax.set_xticks(range(len(tables)), [st.suite for st in tables], rotation=15)
+    ax.set_ylim(0, 105)
+    ax.set_ylabel("success (%)")
+    ax.set_title("Success per suite (all trials pooled, Wilson 95% CI)")
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    ax.grid(axis="y", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path)
+    return path
+
+
+def runtime_vs_k_plot(data: ReportData, runtime: list[RuntimeRow], path: Path) -> Path:
+    """Method configs grouped by everything but K: wall time per executed step and success vs K."""
+    families: dict[str, list[RuntimeRow]] = defaultdict(list)
+    for r in runtime:
+        families[r.method.family].append(r)
+    fig = Figure(figsize=(10, 4), dpi=110)
+    FigureCanvasAgg(fig)
+    ax_t, ax_s = fig.add_subplot(1, 2, 1), fig.add_subplot(1, 2, 2)
+    for family, rows in families.items():
+        rows = sorted(rows, key=lambda r: r.method.k)
+        ks = [r.method.k for r in rows]
+        ms = [1000 * r.wall_per_step_s for r in rows]
+        keep = [i for i, v in enumerate(ms) if not math.isnan(v)]
+        ax_t.plot([ks[i] for i in keep], [ms[i] for i in keep], marker="o", label=family)
+        cells = [data.pooled(r.method.config_hash) for r in rows]
+        heights, err = _errorbars(cells)
+        ax_s.errorbar(ks, heights, yerr=err, marker="o", capsize=3, label=family)
+    all_k = sorted({r.method.k for r in runtime})
+    top = max((1000 * r.wall_per_step_s for r in runtime if not math.isnan(r.wall_per_step_s)), default=1.0)
+    ax_t.set_ylim(0, 1.15 * top)  # room above the highest point so its marker is not cut
+    for ax in (ax_t, ax_s):
+        ax.set_xlabel("K (candidates per sub-plan)")
+        ax.set_xticks(all_k)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    ax_t.set_ylabel("wall ms per executed step")
+    ax_t.set_title("Runtime vs K")
+    ax_s.set_ylabel("success (%)")
+    ax_s.set_ylim(0, 105)
+    ax_s.set_title("Success vs K (all suites, Wilson 95% CI)")
+    fig.tight_layout()
+    fig.savefig(path)
+    return path

@@ -1,0 +1,306 @@
+"""The report's tables: computed once as numbers, then shown as Markdown, HTML or CSV.
+
+Success tables follow the paper's layout (a suite per table, tasks as rows, methods as columns,
+an average row, the best method per row in bold), with a Wilson 95% interval in every cell and
+the paper's own numbers in extra columns where the paper reports that suite.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from collections import Counter
+from dataclasses import dataclass, field
+
+from seal.report.data import Cell, MethodInfo, ReportData
+from seal.report.paper import PAPER_NAMES, TABLES, PaperResults, paper_method_for
+from seal.report.stats import PairedDifference, paired_difference
+
+
+# ---- display model shared by Markdown and HTML ---------------------------------------------------
+@dataclass
+class Table:
+    """Rows of strings; ``bold`` holds (row, column) positions to emphasise."""
+
+    title: str
+    headers: list[str]
+    rows: list[list[str]]
+    bold: set[tuple[int, int]] = field(default_factory=set)
+    notes: list[str] = field(default_factory=list)
+    left: int = 2  # leading text columns (left-aligned); the rest are numbers
+
+
+def to_markdown(t: Table) -> str:
+    def esc(s: str) -> str:  # a '|' inside a cell would end it
+        return s.replace("\\", "\\\\").replace("|", "\\|").replace("\n", " ")
+
+    lines = [f"### {t.title}", ""]
+    if t.rows:  # a table with a header and no rows reads as broken; the notes say why it is empty
+        lines += ["| " + " | ".join(esc(h) for h in t.headers) + " |",
+                  "|" + "|".join("---" if i < t.left else "---:" for i in range(len(t.headers))) + "|"]
+    for i, row in enumerate(t.rows):
+        cells = [f"**{esc(c)}**" if (i, j) in t.bold and c else esc(c) for j, c in enumerate(row)]
+        lines.append("| " + " | ".join(cells) + " |")
+    lines += [""] + [f"{n}  " for n in t.notes]
+    return "\n".join(lines).rstrip() + "\n"
+
+
+def to_csv(headers: list[str], rows: list[list]) -> str:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(headers)
+    w.writerows([["" if isinstance(v, float) and math.isnan(v) else v for v in row] for row in rows])
+    return buf.getvalue()
+
+
+def pct(x: float, digits: int = 1) -> str:
+    return "–" if x is None or math.isnan(x) else f"{100 * x:.{digits}f}"
+
+
+# ---- success tables ----------------------------------------------------------------------------
+@dataclass
+class SuccessTable:
+    suite: str
+    methods: list[MethodInfo]
+    paper_methods: list[str]  # paper columns, e.g. ["pi0_reason", "seal"]
+    training: str
+    tasks: list[int]
+    cells: dict[int | str, list[Cell]]  # task id (or "average") -> one Cell per method
+    paper: dict[int | str, list[float | None]]  # same keys -> percent per paper column
+    instructions: dict[int, str]
+
+    @property
+    def keys(self) -> list[int | str]:
+        return [*self.tasks, "average"]
+
+    def best(self, key) -> set[int]:
+        """Columns with the highest success rate in a row (ties all count)."""
+        rates = [c.rate for c in self.cells[key]]
+        valid = [r for r in rates if not math.isnan(r)]
+        if not valid:
+            return set()
+        top = max(valid)
+        return {j for j, r in enumerate(rates) if not math.isnan(r) and r == top}
+
+
+def success_table(data: ReportData, suite: str, paper: PaperResults, training: str) -> SuccessTable:
+    methods = data.methods_in(suite)
+    tasks = data.tasks(suite)
+    paper_methods: list[str] = []
+    if paper.has_suite(suite, training):
+        for m in methods:
+            pm = paper_method_for(m.config)
+            if pm and pm not in paper_methods:
+                paper_methods.append(pm)
+    cells = {t: [data.cell(suite, t, m.config_hash) for m in methods] for t in tasks}
+    cells["average"] = [data.pooled(m.config_hash, suite) for m in methods]
+    prates = {t: [paper.rate(suite, training, t, pm) for pm in paper_methods] for t in tasks}
+    # The paper's average over the same tasks we ran, from its per-task rows (its printed
+    # averages do not always match its own rows; see docs/reports.md).
+    prates["average"] = [_mean([prates[t][j] for t in tasks]) for j in range(len(paper_methods))]
+    return SuccessTable(suite, methods, paper_methods, training, tasks, cells, prates,
+                        {t: data.instruction(suite, t) for t in tasks})
+
+
+def _mean(values: list[float | None]) -> float | None:
+    got = [v for v in values if v is not None]
+    return sum(got) / len(got) if got else None
+
+
+def success_display(st: SuccessTable) -> Table:
+    counts = Counter(c.n for key in st.tasks for c in st.cells[key] if c.n)
+    usual = counts.most_common(1)[0][0] if counts else 0
+    headers = ["Task", "Instruction", *[m.label for m in st.methods],
+               *[f"paper {PAPER_NAMES.get(pm, pm)}" for pm in st.paper_methods]]
+    rows, bold = [], set()
+    for i, key in enumerate(st.keys):
+        row = ["Average" if key == "average" else str(key), "" if key == "average" else st.instructions.get(key, "")]
+        for c in st.cells[key]:
+            row.append(_cell_text(c, usual if key != "average" else None))
+        row += ["–" if v is None else f"{v:.1f}" for v in st.paper[key]]
+        rows.append(row)
+        bold |= {(i, 2 + j) for j in st.best(key)}
+    notes = [(f"Success in percent with a Wilson 95% interval; {usual} trials per cell unless marked "
+             "(n=...). Error trials count as failures (marked err). Average = all trials of the suite pooled.")]
+    if st.paper_methods:
+        notes.append(f"Paper columns: {TABLES.get(st.suite, 'the paper')}, trained on {st.training}; "
+                     "their average is the mean of the paper's per-task rows for the tasks shown.")
+    return Table(f"{st.suite}: success rate (%)", headers, rows, bold, notes)
+
+
+def _cell_text(c: Cell, usual: int | None) -> str:
+    if c.n == 0:
+        return "–"
+    lo, hi = c.ci
+    text = f"{pct(c.rate)} [{pct(lo)}, {pct(hi)}]"
+    extra = [f"n={c.n}"] if usual is not None and c.n != usual else []
+    if c.errors:
+        extra.append(f"{c.errors} err")
+    return text + (f" ({', '.join(extra)})" if extra else "")
+
+
+def success_csv(st: SuccessTable) -> str:
+    headers = ["task", "instruction"]
+    for m in st.methods:
+        headers += [f"{m.label} success_pct", f"{m.label} ci_low", f"{m.label} ci_high", f"{m.label} n",
+                    f"{m.label} errors"]
+    headers += [f"paper {pm}" for pm in st.paper_methods]
+    rows = []
+    for key in st.keys:
+        row = [key, st.instructions.get(key, "") if key != "average" else ""]
+        for c in st.cells[key]:
+            lo, hi = c.ci
+            row += [_num(100 * c.rate), _num(100 * lo), _num(100 * hi), c.n, c.errors]
+        row += ["" if v is None else v for v in st.paper[key]]
+        rows.append(row)
+    return to_csv(headers, rows)
+
+
+def _num(x: float, digits: int = 2):
+    return "" if math.isnan(x) else round(x, digits)
+
+
+def long_csv(data: ReportData, tables: list[SuccessTable]) -> str:
+    """One row per (suite, task, method): the easiest shape for other tools."""
+    rows = []
+    for st in tables:
+        for key in st.keys:
+            for j, (m, c) in enumerate(zip(st.methods, st.cells[key])):
+                pm = paper_method_for(m.config) if paper_method_for(m.config) in st.paper_methods else None
+                pv = st.paper[key][st.paper_methods.index(pm)] if pm else None
+                lo, hi = c.ci
+                rows.append([st.suite, key, m.label, m.config_hash, c.n, c.successes, c.errors, c.sim_errors,
+                             _num(100 * c.rate), _num(100 * lo), _num(100 * hi), pm or "", "" if pv is None else pv])
+    return to_csv(["suite", "task", "method", "config_hash", "trials", "successes", "errors", "sim_errors",
+                   "success_pct", "ci_low", "ci_high", "paper_method", "paper_pct"], rows)
+
+
+# ---- paired differences -----------------------------------------------------------------------
+@dataclass
+class PairedRow:
+    suite: str  # or "all"
+    a: MethodInfo
+    b: MethodInfo
+    result: PairedDifference
+
+
+def paired_rows(data: ReportData) -> list[PairedRow]:
+    """Every later method against every earlier one (so 'seal - base'), per suite and overall."""
+    out = []
+    for suite in [*data.suites, None]:
+        methods = data.methods_in(suite)
+        for i, b in enumerate(methods):
+            for a in methods[i + 1:]:
+                pairs = data.pairs(a.config_hash, b.config_hash, suite)
+                if pairs:
+                    out.append(PairedRow(suite or "all", a, b, paired_difference(pairs)))
+    if len(data.suites) == 1:  # "all" would repeat the one suite
+        out = [r for r in out if r.suite != "all"]
+    return out
+
+
+def paired_display(rows: list[PairedRow]) -> Table:
+    headers = ["Suite", "A", "B", "paired trials", "A only", "B only", "A − B (pp)", "95% CI (pp)", "McNemar p"]
+    body, bold = [], set()
+    for i, r in enumerate(rows):
+        d = r.result
+        body.append([r.suite, r.a.label, r.b.label, str(d.n), str(d.only_a), str(d.only_b), f"{100 * d.diff:+.1f}",
+                     f"[{100 * d.ci[0]:+.1f}, {100 * d.ci[1]:+.1f}]", f"{d.p_value:.3g}"])
+        if d.ci[0] > 0 or d.ci[1] < 0:
+            bold.add((i, 6))
+    notes = [("Paired on (suite, task, trial): the same init state and seed for both methods. "
+             "CI: Newcombe's hybrid score interval for paired proportions; p: exact McNemar test on the "
+             "trials where exactly one method succeeded. Bold: the interval excludes 0.")]
+    return Table("Paired differences (A − B, percentage points)", headers, body, bold, notes, left=3)
+
+
+def paired_csv(rows: list[PairedRow]) -> str:
+    return to_csv(["suite", "a", "b", "paired_trials", "both", "a_only", "b_only", "neither", "diff_pp",
+                   "ci_low_pp", "ci_high_pp", "mcnemar_p"],
+                  [[r.suite, r.a.label, r.b.label, r.result.n, r.result.both, r.result.only_a, r.result.only_b,
+                    r.result.neither, _num(100 * r.result.diff), _num(100 * r.result.ci[0]),
+                    _num(100 * r.result.ci[1]), round(r.result.p_value, 6)] for r in rows])
+
+
+# ---- runtime ------------------------------------------------------------------------------------
+@dataclass
+class RuntimeRow:
+    method: MethodInfo
+    trials: int
+    steps: int  # executed env steps, all trials
+    wall_s: float
+    step_s: float
+    verify_wait_s: float
+    verifier_calls: int
+    input_tokens: int
+    output_tokens: int
+    cost_usd: float
+
+    def per_trial(self, total: float) -> float:
+        return total / self.trials if self.trials else math.nan
+
+    @property
+    def wall_per_step_s(self) -> float:
+        """Ratio of totals (not a mean of ratios), so short failed episodes do not dominate."""
+        return self.wall_s / self.steps if self.steps else math.nan
+
+
+def runtime_rows(data: ReportData) -> list[RuntimeRow]:
+    out = []
+    for m in data.methods:
+        rs = [r for r in data.rows if r.config_hash == m.config_hash]
+        out.append(RuntimeRow(m, len(rs), sum(r.steps for r in rs), sum(r.wall_s for r in rs),
+                              sum(r.step_s for r in rs), sum(r.verify_wait_s for r in rs),
+                              sum(r.verifier_calls for r in rs), sum(r.input_tokens for r in rs),
+                              sum(r.output_tokens for r in rs), sum(r.cost_usd for r in rs)))
+    return out
+
+
+def runtime_display(rows: list[RuntimeRow]) -> Table:
+    headers = ["Method", "K", "trials", "wall s / trial", "executed steps / trial", "wall ms / executed step",
+               "sim s / trial", "verify wait s / trial", "verifier calls / trial", "tokens in / trial",
+               "tokens out / trial", "cost $ / trial", "cost $ total"]
+    body = [[r.method.label, str(r.method.k), str(r.trials), f"{r.per_trial(r.wall_s):.2f}",
+             f"{r.per_trial(r.steps):.1f}", _fmt(1000 * r.wall_per_step_s, 1), f"{r.per_trial(r.step_s):.2f}",
+             f"{r.per_trial(r.verify_wait_s):.2f}", f"{r.per_trial(r.verifier_calls):.1f}",
+             f"{r.per_trial(r.input_tokens):.0f}", f"{r.per_trial(r.output_tokens):.0f}",
+             f"{r.per_trial(r.cost_usd):.4f}", f"{r.cost_usd:.4f}"] for r in rows]
+    notes = [("All trials of a configuration, error trials included (they cost time too). Per executed "
+             "step = total wall time / total executed env steps. sim = time stepping the simulator for "
+             "candidates; verify wait = time blocked on verdicts.")]
+    return Table("Runtime per method configuration", headers, body, set(), notes, left=1)
+
+
+def runtime_csv(rows: list[RuntimeRow]) -> str:
+    return to_csv(["method", "config_hash", "k", "trials", "executed_steps", "wall_s_per_trial",
+                   "wall_s_per_executed_step", "sim_s_per_trial", "verify_wait_s_per_trial",
+                   "verifier_calls_per_trial", "input_tokens_per_trial", "output_tokens_per_trial",
+                   "cost_usd_per_trial", "cost_usd_total"],
+                  [[r.method.label, r.method.config_hash, r.method.k, r.trials, r.steps,
+                    _num(r.per_trial(r.wall_s), 3), _num(r.wall_per_step_s, 5), _num(r.per_trial(r.step_s), 3),
+                    _num(r.per_trial(r.verify_wait_s), 3), _num(r.per_trial(r.verifier_calls), 2),
+                    _num(r.per_trial(r.input_tokens), 1), _num(r.per_trial(r.output_tokens), 1),
+                    _num(r.per_trial(r.cost_usd), 6), round(r.cost_usd, 6)] for r in rows])
+
+
+def _fmt(x: float, digits: int) -> str:
+    return "–" if math.isnan(x) else f"{x:.{digits}f}"
+
+
+# ---- error trials ------------------------------------------------------------------------------
+def error_display(data: ReportData) -> Table:
+    body = [[r.method, r.suite, str(r.task), str(r.trial), r.worker, last_line(r.error)] for r in data.errors()]
+    notes = [] if body else ["No trial crashed."]
+    return Table("Error trials (counted as failures)", ["Method", "Suite", "Task", "Trial", "Worker", "Error"],
+                 body, set(), notes, left=6)
+
+
+def error_csv(data: ReportData) -> str:
+    return to_csv(["method", "config_hash", "suite", "task", "trial", "worker", "error"],
+                  [[r.method, r.config_hash, r.suite, r.task, r.trial, r.worker, r.error] for r in data.errors()])
+
+
+def last_line(traceback_text: str) -> str:
+    lines = [ln for ln in traceback_text.strip().splitlines() if ln.strip()]
+    return lines[-1].strip() if lines else ""

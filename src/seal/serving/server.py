@@ -1,0 +1,326 @@
+"""Serve any SEAL `ReasoningPolicy` over openpi's websocket protocol (plus SEAL's extension).
+
+Like openpi's ``WebsocketPolicyServer``: the metadata goes out on connect, then every binary
+frame is a request and gets one reply; errors go back as a text frame. Unlike it, a bad
+request (missing key, wrong shape) gets its error message and the connection stays open -
+only an unexpected exception closes it (code 1011), as openpi does.
+
+Stateful policies (the scripted expert keeps its plan and per-row random streams) live in
+*sessions*: a client names its session in every message (``seal/session``), so the several
+connections a client opens to send K observations concurrently share one policy. Without a
+session name a connection gets a session of its own. Policy calls run in a worker thread,
+one at a time per session, so the event loop keeps reading other connections meanwhile.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+import traceback
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+import websockets
+import websockets.asyncio.server as ws_server
+from openpi_client import msgpack_numpy
+
+from seal.errors import InvalidInput, SealError
+from seal.policies.base import PREDICT_HORIZON, ActionChunk
+from seal.serving import protocol as P
+
+log = logging.getLogger(__name__)
+
+PolicyFactory = Callable[[str], Any]  # task key (e.g. "libero_10/0") -> a ReasoningPolicy
+POLICIES = ("scripted",)
+
+
+def scripted_factory(knobs: str = "misaligned", seed: int = 0) -> PolicyFactory:
+    """The scripted expert for whatever task a client configures."""
+    from seal.policies.expert.policy import FailureKnobs
+    from seal.sim.suites import get_task
+    from seal.steer.run import expert_policy
+
+    setting = FailureKnobs.named(knobs)  # fail on a bad name now, not at the first client
+
+    def make(task: str):
+        suite, _, index = str(task).partition("/")
+        if not index.isdigit():
+            raise InvalidInput(f"task must look like 'libero_10/0', got {task!r}")
+        return expert_policy(get_task(suite, int(index)), setting, seed=seed)
+
+    return make
+
+
+def scripted_info(max_batch: int = 64, *, plain: bool = False) -> P.ServerInfo:
+    """``plain``: behave like a pi0 server - no reasoning or think in replies, no batching; the
+    expert then follows its own hidden plan for the whole task (a stand-in for pi0 in tests)."""
+    return P.ServerInfo(reasoning=not plain, batch=not plain, max_batch=max_batch, control=True, privileged=True,
+                        images=False, version=P.PROTOCOL_VERSION)
+
+
+@dataclass
+class _Session:
+    policy: Any = None
+    task: str = ""
+    lock: asyncio.Lock = field(default_factory=asyncio.Lock)
+
+
+class PolicyServer:
+    def __init__(self, factory: PolicyFactory, info: P.ServerInfo, *, host: str = "127.0.0.1", port: int = 0,
+                 metadata: dict | None = None, default_task: str | None = None, max_sessions: int = 32):
+        self.factory, self.info, self.host, self.port = factory, info, host, port
+        self.metadata = {**(metadata or {}), "seal": info.to_metadata()}
+        self.default_task = default_task  # lets a plain openpi client (no configure) use the server
+        self.max_sessions = max_sessions
+        self._sessions: OrderedDict[str, _Session] = OrderedDict()
+        self.requests = 0
+
+    # ---- running ---------------------------------------------------------------------------
+    async def serve(self, stop: asyncio.Future, on_ready: Callable[[int], None] | None = None) -> None:
+        async with ws_server.serve(self._handler, self.host, self.port, compression=None, max_size=None,
+                                   process_request=_health_check) as server:
+            self.port = server.sockets[0].getsockname()[1]
+            if on_ready is not None:
+                on_ready(self.port)
+            await stop
+            server.close(close_connections=True)
+            await server.wait_closed()
+
+    def serve_forever(self, on_ready: Callable[[int], None] | None = None) -> None:
+        """Until SIGINT/SIGTERM, then close every connection and return (no traceback)."""
+
+        async def main():
+            loop = asyncio.get_running_loop()
+            stop = loop.create_future()
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                loop.add_signal_handler(sig, lambda: stop.done() or stop.set_result(None))
+            await self.serve(stop, on_ready)
+
+        asyncio.run(main())
+
+    # ---- one connection ----------------------------------------------------------------------
+    async def _handler(self, ws: ws_server.ServerConnection) -> None:
+        own_session = f"conn-{id(ws)}"
+        packer = msgpack_numpy.Packer()
+        await ws.send(packer.pack(self.metadata))
+        try:
+            async for message in ws:
+                try:
+                    if isinstance(message, str):
+                        raise P.ProtocolError("requests must be binary msgpack frames, got a text frame")
+                    try:
+                        req = msgpack_numpy.unpackb(message)
+                    except Exception as exc:
+                        raise P.ProtocolError(f"request is not valid msgpack: {type(exc).__name__}: {exc}") from None
+                    reply = await self._dispatch(req, own_session)
+                except SealError as exc:  # the client's fault: say why, keep serving
+                    await ws.send(f"{type(exc).__name__}: {exc}")
+                    continue
+                except Exception:  # ours: report it and close, as openpi's server does
+                    await ws.send(traceback.format_exc())
+                    await ws.close(code=1011, reason="internal server error; traceback in the previous frame")
+                    log.exception("policy server error")
+                    return
+                await ws.send(packer.pack(reply))
+        except websockets.ConnectionClosed:
+            pass
+        finally:
+            self._sessions.pop(own_session, None)
+
+    async def _dispatch(self, req: Any, own_session: str) -> dict:
+        if not isinstance(req, dict):
+            raise P.ProtocolError(f"a request must be a msgpack map, got {type(req).__name__}")
+        self.requests += 1
+        sid = req.get(P.SESSION, own_session)
+        if not isinstance(sid, str):
+            raise P.ProtocolError(f"request {P.SESSION!r} must be a string, got {sid!r}")
+        if P.CONTROL in req:
+            return await self._control(P.check_control(req), req, sid)
+        session = self._session(sid)
+        if session.policy is None:
+            if self.default_task is None:
+                raise P.ProtocolError(f"no policy in session {sid!r} yet: send {{'{P.CONTROL}': 'configure', "
+                                      "'task': 'libero_10/0'}} first")
+            await self._configure(session, self.default_task)
+        obs = P.parse_request(req, needs_images=self.info.images, needs_scene=self.info.privileged)
+        n = req.get(P.BATCH)
+        rows = P.request_rows(req, n)
+        given = req.get(P.REASONING) if self.info.reasoning else None
+        reasoning = P.parse_reasoning(given) if given is not None else None
+        if reasoning is None and n is not None:
+            raise P.ProtocolError(f"a batched request ({P.BATCH!r}) must carry 'reasoning' to act on")
+        async with session.lock:
+            t0 = time.perf_counter()
+            reasoning, chunks = await asyncio.to_thread(_infer, session.policy, obs, reasoning, rows)
+            infer_ms = (time.perf_counter() - t0) * 1e3
+        reply: dict[str, Any] = {"server_timing": {"infer_ms": infer_ms}}
+        if n is None:
+            reply[P.ACTIONS], reply[P.THINK] = chunks[0].actions, bool(chunks[0].think)
+        else:
+            reply[P.ACTIONS] = np.stack([c.actions for c in chunks])
+            reply[P.THINK] = np.array([c.think for c in chunks], dtype=bool)
+        if self.info.reasoning:
+            reply[P.REASONING] = reasoning.text()
+        else:  # a plain server says nothing about its plan
+            del reply[P.THINK]
+        return reply
+
+    async def _control(self, ctrl: str, req: dict, sid: str) -> dict:
+        session = self._session(sid)
+        if ctrl == "configure":
+            task = req.get("task")
+            if not isinstance(task, str):
+                raise P.ProtocolError(f"'configure' needs 'task' (a string like 'libero_10/0'), got {task!r}")
+            await self._configure(session, task)
+            atoms = session.policy.privileged_atoms() if hasattr(session.policy, "privileged_atoms") else None
+            return {"ok": True, "task": task, "privileged_atoms": atoms}
+        if session.policy is None:
+            if self.default_task is None:
+                raise P.ProtocolError(f"{ctrl!r} before 'configure' in session {sid!r}")
+            await self._configure(session, self.default_task)
+        async with session.lock:
+            if ctrl == "reset":
+                instruction, seed = req.get("instruction"), req.get("seed", 0)
+                if not isinstance(instruction, str) or not isinstance(seed, int):
+                    raise P.ProtocolError(f"'reset' needs 'instruction' (string) and 'seed' (int), got "
+                                          f"{instruction!r}, {seed!r}")
+                session.policy.reset(instruction, seed=seed)
+            else:  # begin
+                k = req.get("k")
+                if not isinstance(k, int) or isinstance(k, bool) or k < 1:
+                    raise P.ProtocolError(f"'begin' needs 'k' (a positive int), got {k!r}")
+                session.policy.begin(k)
+        return {"ok": True}
+
+    async def _configure(self, session: _Session, task: str) -> None:
+        async with session.lock:
+            session.policy = await asyncio.to_thread(self.factory, task)
+            session.task = task
+
+    def _session(self, sid: str) -> _Session:
+        session = self._sessions.get(sid)
+        if session is None:
+            session = self._sessions[sid] = _Session()
+            while len(self._sessions) > self.max_sessions:  # forget the least recently used
+                self._sessions.popitem(last=False)
+        self._sessions.move_to_end(sid)
+        return session
+
+
+def _infer(policy, obs, reasoning, rows) -> tuple[Any, list[ActionChunk]]:
+    """A reply's content. Without given reasoning the policy reasons first (as a reasoning VLA
+    writes <think>...<act> before its actions), then acts as a fresh single attempt."""
+    if reasoning is None:
+        reasoning = policy.reason(obs[0])
+        if reasoning.finished:
+            return reasoning, [ActionChunk(np.zeros((PREDICT_HORIZON, 7)), think=True)]
+        policy.begin(rows[0] + 1)
+    return reasoning, policy.act(obs, reasoning, rows=rows)
+
+
+def _health_check(connection, request):
+    """``GET /healthz`` answers 200 without a websocket handshake (openpi's server does the same)."""
+    import http
+
+    if request.path == "/healthz":
+        return connection.respond(http.HTTPStatus.OK, "OK\n")
+    return None
+
+
+# ---------------------------------------------------------------------------- in a thread / a process
+
+
+class ServerThread:
+    """A `PolicyServer` on its own event loop in a background thread (tests, benchmarks)."""
+
+    def __init__(self, server: PolicyServer):
+        self.server = server
+        self._loop = asyncio.new_event_loop()
+        self._ready = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="seal-serve", daemon=True)
+
+    def _run(self) -> None:
+        asyncio.set_event_loop(self._loop)
+        self._stop = self._loop.create_future()
+        self._loop.run_until_complete(self.server.serve(self._stop, lambda port: self._ready.set()))
+
+    def __enter__(self) -> "ServerThread":
+        self._thread.start()
+        if not self._ready.wait(30):
+            raise RuntimeError("policy server thread did not start within 30 s")
+        return self
+
+    @property
+    def port(self) -> int:
+        return self.server.port
+
+    def stop(self) -> None:
+        """Close every connection and stop serving (safe to call from any thread, and twice)."""
+        if self._thread.is_alive():
+            self._loop.call_soon_threadsafe(lambda: self._stop.done() or self._stop.set_result(None))
+            self._thread.join(timeout=15)
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+        if not self._thread.is_alive():
+            self._loop.close()
+
+
+class ServerProcess:
+    """``seal serve ... --port 0`` as a child process; the port comes from its first stdout line."""
+
+    def __init__(self, args: list[str], *, startup_timeout_s: float = 60.0):
+        self.args, self.startup_timeout_s = args, startup_timeout_s
+        self.proc: subprocess.Popen | None = None
+        self.port = 0
+
+    def __enter__(self) -> "ServerProcess":
+        cmd = [sys.executable, "-m", "seal.cli", "serve", "--host", "127.0.0.1", "--port", "0", *self.args]
+        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, env=os.environ.copy())
+        ready: dict = {}
+
+        def read_port() -> None:  # the first JSON line with a port; anything else printed before is skipped
+            for line in self.proc.stdout:
+                try:
+                    event = json.loads(line)
+                except ValueError:
+                    continue
+                if isinstance(event, dict) and "port" in event:
+                    ready.update(event)
+                    return
+
+        reader = threading.Thread(target=read_port, daemon=True)
+        reader.start()
+        reader.join(self.startup_timeout_s)
+        if "port" not in ready:
+            self.stop()
+            raise RuntimeError(f"`seal serve {' '.join(self.args)}` did not report a port within "
+                               f"{self.startup_timeout_s:g} s (exit code {self.proc.poll()})")
+        self.port = int(ready["port"])
+        return self
+
+    def stop(self, sig: int = signal.SIGINT, timeout: float = 15.0) -> int | None:
+        """Ask it to stop as Ctrl-C would; kill it only if it does not within ``timeout``."""
+        if self.proc is None or self.proc.poll() is not None:
+            return None if self.proc is None else self.proc.returncode
+        self.proc.send_signal(sig)
+        try:
+            return self.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+            return None
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+        if self.proc is not None and self.proc.stdout is not None:
+            self.proc.stdout.close()

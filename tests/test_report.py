@@ -1,0 +1,285 @@
+"""`seal report`: statistics, table layout, plots, HTML escaping and the HTML in headless Chromium.
+
+The store fixture is written with the real ResultStore and real trial files (trace, grid PNG,
+MP4); the outcomes are chosen so every count in the tables is known in advance.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from seal.errors import InvalidInput
+from seal.eval.store import ResultStore, TrialRow
+from seal.eval.trials import MethodSpec, trial_seed
+from seal.report import write_report
+from seal.report.data import ReportData
+from seal.report.stats import (
+    mcnemar_exact,
+    paired_difference,
+    paired_from_counts,
+    wilson,
+)
+from seal.report.tables import paired_rows
+
+BASE, SEAL, SEAL2 = MethodSpec(method="base"), MethodSpec(k=10), MethodSpec(k=2)
+HOSTILE = "<script>document.body.setAttribute('data-pwned','1')</script><img src=x onerror=alert(1)> & \"q\""
+N = 10  # trials per task
+
+# Successes per (suite, task, method): trial t succeeds if t < count.
+OUTCOMES = {("libero_10", 0): {BASE: 5, SEAL: 9, SEAL2: 7},
+            ("libero_10", 1): {BASE: 10, SEAL: 10, SEAL2: 10},
+            ("composition", 3): {BASE: 0, SEAL: 4}}
+
+
+def _write_trial_files(root: Path, spec: MethodSpec, suite: str, task: int, trial: int) -> tuple[str, str]:
+    """A trace with a hostile rationale, a candidate grid and a short real MP4, laid out as the runner does."""
+    import imageio.v2 as imageio
+
+    d = root / suite / str(task) / f"{spec.method}-{spec.config_hash}" / f"trial{trial:03d}"
+    (d / "grids").mkdir(parents=True)
+    events = [
+        {"event": "subplan", "t": 0.1, "step": 0, "text": "pick up the <b>soup</b>", "reasoning": "Plans: 1. a. 2. b."},
+        {"event": "candidate", "t": 1.0, "round": 0, "slot": 0, "steps": 40, "ended_by": "think", "error": None,
+         "verdict": {"success": False, "rationale": HOSTILE, "latency_s": 0.1, "score": 0.0, "cached": False}},
+        {"event": "candidate", "t": 1.1, "round": 0, "slot": 1, "steps": 45, "ended_by": "think", "error": None,
+         "verdict": {"success": True, "rationale": "Grasped(soup) is true", "latency_s": 0.1, "score": 1.0,
+                     "cached": True}},
+        {"event": "commit", "t": 1.2, "slot": 1, "round": 0, "steps": 45, "ended_by": "think",
+         "verdict": {"success": True, "rationale": "Grasped(soup) is true"}},
+        {"event": "episode_end", "t": 1.3, "success": False, "steps": 45, "sim_error": False},
+    ]
+    (d / "trace.jsonl").write_text("".join(json.dumps(e) + "\n" for e in events))
+    grid = np.zeros((60, 120, 3), np.uint8)
+    grid[:, :60] = (200, 30, 30)
+    grid[:, 60:] = (30, 200, 30)
+    Image.fromarray(grid).save(d / "grids" / "subplan01_round0.png")
+    with imageio.get_writer(d / "episode.mp4", fps=5, macro_block_size=1) as video:
+        for i in range(5):
+            video.append_data(np.full((64, 64, 3), 40 * i, np.uint8))
+    return str(d / "trace.jsonl"), str(d / "episode.mp4")
+
+
+@pytest.fixture(scope="module")
+def store_path(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("report")
+    db = root / "results.db"
+    runs = root / "results_runs"
+    with ResultStore(db) as store:
+        for spec in (BASE, SEAL, SEAL2):
+            store.register_method(spec.config_hash, spec.label, spec.canonical())
+        for (suite, task), per_method in OUTCOMES.items():
+            for spec, count in per_method.items():
+                for t in range(N):
+                    trace, video = ("", "")
+                    if suite == "libero_10" and task == 0 and t == 5:
+                        trace, video = _write_trial_files(runs, spec, suite, task, t)
+                    store.add(TrialRow(method=spec.label, config_hash=spec.config_hash, suite=suite, task=task,
+                                       trial=t, init_index=t, seed=trial_seed(suite, task, t), success=t < count,
+                                       steps=100, wall_s=20.0 * spec.effective_k, step_s=5.0,
+                                       verifier_calls=3 * (spec.method == "seal"), input_tokens=1000, output_tokens=50,
+                                       cost_usd=0.01, subplans=["pick up the soup", "place it in the basket"],
+                                       trace_path=trace, video_path=video, worker="w1"))
+        # A seal trial base never ran: must not enter any paired comparison.
+        store.add(TrialRow(method=SEAL.label, config_hash=SEAL.config_hash, suite="libero_10", task=0, trial=N,
+                           init_index=0, seed=1, success=True, steps=100, wall_s=200.0))
+        # A crashed trial with success=1 stored by mistake: still a failure in every table.
+        store.add(TrialRow(method=SEAL2.label, config_hash=SEAL2.config_hash, suite="composition", task=3, trial=0,
+                           init_index=0, seed=1, status="error", success=True,
+                           error="Traceback (most recent call last):\n  File \"x.py\"\nRuntimeError: <boom> & bust",
+                           worker="w2"))
+    return db
+
+
+@pytest.fixture(scope="module")
+def report(store_path, tmp_path_factory):
+    out = tmp_path_factory.mktemp("out") / "report"
+    return write_report(store_path, out)
+
+
+# ---- statistics ---------------------------------------------------------------------------------
+def test_wilson_matches_published_values():
+    # Newcombe (1998), "Two-sided confidence intervals for the single proportion", score method.
+    for (x, n), (lo, hi) in {(81, 263): (0.2553, 0.3662), (15, 148): (0.0624, 0.1605),
+                             (0, 20): (0.0, 0.1611), (1, 29): (0.0061, 0.1718)}.items():
+        got = wilson(x, n)
+        assert got == pytest.approx((lo, hi), abs=5e-5), (x, n, got)
+    assert wilson(10, 10) == pytest.approx((0.7225, 1.0), abs=5e-5)
+    assert all(math.isnan(v) for v in wilson(0, 0))
+    with pytest.raises(ValueError):
+        wilson(3, 2)
+
+
+def test_paired_interval_and_mcnemar_match_published_values():
+    # Newcombe's square-and-add interval for paired proportions, 2x2 table [[59, 6], [16, 80]]
+    # (the contingencytables R package's worked example): -0.0621 (-0.1186 to -0.0046).
+    d = paired_from_counts(59, 6, 16, 80)
+    assert d.diff == pytest.approx(-0.0621, abs=5e-5)
+    assert d.ci == pytest.approx((-0.1186, -0.0046), abs=5e-5)
+    assert mcnemar_exact(12, 2) == pytest.approx(2 * (1 + 14 + 91) / 2 ** 14)
+    assert mcnemar_exact(0, 0) == 1.0 and mcnemar_exact(5, 5) == 1.0
+    same = paired_difference([(True, True)] * 3 + [(False, False)] * 2)
+    assert same.diff == 0 and same.ci[0] < 0 < same.ci[1] and same.p_value == 1.0
+
+
+def test_paired_differences_on_the_store(store_path):
+    data = ReportData(store_path)
+    assert data.pairs(SEAL.config_hash, BASE.config_hash, "composition") == [(t < 4, False) for t in range(N)]
+    rows = {(r.suite, r.a.label, r.b.label): r.result for r in paired_rows(data)}
+    # libero_10: task 0 base 5/10 vs seal 9/10, task 1 both 10/10; seal's unpaired trial 10 left out.
+    d = rows[("libero_10", "seal", "base")]
+    assert (d.n, d.both, d.only_a, d.only_b, d.neither) == (20, 15, 4, 0, 1)
+    assert d.diff == pytest.approx(0.2)
+    assert d.p_value == pytest.approx(2 / 16)
+    assert d.ci == pytest.approx(paired_from_counts(15, 4, 0, 1).ci)
+    # Overall: composition adds 4 seal-only successes over 10 more pairs.
+    d = rows[("all", "seal", "base")]
+    assert (d.n, d.only_a, d.only_b) == (30, 8, 0) and d.diff == pytest.approx(8 / 30)
+    assert d.ci[0] > 0  # eight discordant pairs all one way: a real difference
+    # seal[k=2]'s only composition trial crashed (stored with success=1): it pairs as a failure.
+    d = rows[("composition", "seal[k=2]", "base")]
+    assert (d.n, d.neither) == (1, 1)
+
+
+# ---- tables -------------------------------------------------------------------------------------
+def _md_table(md: str, title: str) -> list[list[str]]:
+    block = md.split(f"### {title}")[1].split("\n\n")[1]
+    return [[c.strip() for c in line.strip().strip("|").split(" | ")] for line in block.splitlines()]
+
+
+def test_markdown_layout(report):
+    md = report.markdown.read_text()
+    rows = _md_table(md, "libero_10: success rate (%)")
+    header = rows[0]
+    assert header[:5] == ["Task", "Instruction", "base", "seal[k=2]", "seal"]
+    assert header[5:] == ["paper π0-reason", "paper SEAL"]
+    assert [r[0] for r in rows[2:]] == ["0", "1", "Average"]
+    task0, task1, avg = rows[2], rows[3], rows[4]
+    assert task0[1] == "put both the alphabet soup and the tomato sauce in the basket"
+    assert task0[2] == "50.0 [23.7, 76.3]"  # Wilson 5/10
+    assert task0[3] == "70.0 [39.7, 89.2]"
+    assert task0[4] == "**90.9 [62.3, 98.4] (n=11)**"  # 10/11 (its extra trial succeeded): best, n marked
+    assert all(c.startswith("**100.0") for c in task1[2:5])  # ties are all bold
+    assert avg[4].startswith("**95.2") and not avg[2].startswith("**")  # pooled 20/21
+    # The paper's Table VII/II numbers, trained on LIBERO-100, task 0: pi0_reason 90, seal 100.
+    assert task0[5:] == ["90.0", "100.0"]
+    comp = _md_table(md, "composition: success rate (%)")
+    assert comp[0][2:] == ["base", "seal[k=2]", "seal", "paper π0-reason", "paper SEAL"]
+    assert "1 err" in comp[2][3] and comp[2][3].startswith("0.0")  # crash with success=1 stored: failure
+    assert "RuntimeError: <boom> & bust" in md  # error trials listed with their last traceback line
+
+
+def test_csv_layout(report):
+    by_name = {p.name: p for p in report.csv}
+    rows = list(csv.DictReader(by_name["success_libero_10.csv"].read_text().splitlines()))
+    assert [r["task"] for r in rows] == ["0", "1", "average"]
+    assert float(rows[0]["base success_pct"]) == 50.0 and rows[0]["base n"] == "10"
+    assert float(rows[0]["seal ci_low"]) == pytest.approx(100 * wilson(10, 11)[0], abs=0.01)
+    assert rows[0]["paper seal"] == "100.0" and rows[2]["seal n"] == "21"
+    long = list(csv.DictReader(by_name["success_long.csv"].read_text().splitlines()))
+    comp = [r for r in long if r["suite"] == "composition" and r["method"] == "seal[k=2]" and r["task"] == "3"]
+    assert comp[0]["errors"] == "1" and comp[0]["successes"] == "0"
+    runtime = {r["method"]: r for r in csv.DictReader(by_name["runtime.csv"].read_text().splitlines())}
+    assert float(runtime["base"]["wall_s_per_executed_step"]) == pytest.approx(0.2)  # 20 s / 100 steps
+    assert float(runtime["seal[k=2]"]["verifier_calls_per_trial"]) == pytest.approx(60 / 21, abs=0.01)
+    errors = list(csv.DictReader(by_name["errors.csv"].read_text().splitlines()))
+    assert len(errors) == 1 and errors[0]["method"] == "seal[k=2]"
+
+
+def test_plots_written(report):
+    names = {p.name for p in report.plots}
+    assert names == {"success_by_suite.png", "runtime_vs_k.png"}
+    for p in report.plots:
+        img = np.asarray(Image.open(p).convert("RGB"))
+        assert img.shape[0] > 300 and img.shape[1] > 500
+        assert len(np.unique(img.reshape(-1, 3), axis=0)) > 20  # drawn, not a blank canvas
+
+
+def test_bad_input(store_path, tmp_path):
+    with pytest.raises(InvalidInput, match="valid: copy, link, none"):
+        write_report(store_path, tmp_path / "r", media="embed")
+    with pytest.raises(InvalidInput, match="libero_100_basket"):
+        write_report(store_path, tmp_path / "r", paper_training="libero_90")
+    with pytest.raises(InvalidInput, match="no results database"):
+        write_report(tmp_path / "missing.db", tmp_path / "r")
+    with ResultStore(tmp_path / "empty.db"):
+        pass
+    with pytest.raises(InvalidInput, match="no finished trials"):
+        write_report(tmp_path / "empty.db", tmp_path / "r")
+
+
+# ---- HTML ---------------------------------------------------------------------------------------
+def _episode_page(report) -> Path:
+    return next(p for p in report.episodes if p.name == f"libero_10-t0-{SEAL.config_hash}-005.html")
+
+
+def test_html_escapes_hostile_text(report):
+    page = _episode_page(report).read_text()
+    assert "<script" not in page and "<img src=x" not in page
+    assert "&lt;script&gt;document.body.setAttribute(&#x27;data-pwned&#x27;,&#x27;1&#x27;)&lt;/script&gt;" in page
+    assert "&amp; &quot;q&quot;" in page
+    assert "pick up the &lt;b&gt;soup&lt;/b&gt;" in page  # sub-plan text from the trace, escaped too
+    assert "script-src &#x27;none&#x27;" in page  # CSP as a second line of defence
+    index = report.index_html.read_text()
+    assert "RuntimeError: &lt;boom&gt; &amp; bust" in index and "<boom>" not in index
+
+
+def test_html_media_copied_and_linked(report):
+    page = _episode_page(report)
+    html = page.read_text()
+    media = report.index_html.parent / "media" / page.stem
+    assert (media / "episode.mp4").stat().st_size > 0 and (media / "grids" / "subplan01_round0.png").exists()
+    assert f'src="../media/{page.stem}/episode.mp4"' in html
+    assert f'src="../media/{page.stem}/grids/subplan01_round0.png"' in html
+    assert "Grasped(soup) is true" in html and "(cached)" in html
+
+
+def test_report_cli(store_path, tmp_path):
+    from seal.cli import main
+
+    out = tmp_path / "cli_report"
+    assert main(["report", str(store_path), "--out", str(out), "--media", "link", "--no-episodes"]) == 0
+    assert (out / "index.html").exists() and (out / "report.md").exists() and not (out / "episodes").exists()
+
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+def _chromium(*args: str, tmp: Path) -> subprocess.CompletedProcess:
+    cmd = [CHROMIUM, "--headless", "--disable-gpu", "--hide-scrollbars", "--no-first-run",
+           f"--user-data-dir={tmp / 'chrome-profile'}", *args]
+    if os.geteuid() == 0:  # Chromium refuses to run as root with its sandbox on
+        cmd.insert(1, "--no-sandbox")
+    return subprocess.run(cmd, check=False, capture_output=True, text=True, timeout=90)
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="chromium not installed (Debian package `chromium`; "
+                    "`make install` installs it)")
+def test_html_report_in_headless_chromium(report, tmp_path):
+    index = report.index_html
+    shot = tmp_path / "index.png"
+    res = _chromium(f"--screenshot={shot}", "--window-size=1280,1600", index.as_uri(), tmp=tmp_path)
+    assert shot.exists(), res.stderr[-2000:]
+    img = np.asarray(Image.open(shot).convert("RGB"))
+    assert img.shape[:2] == (1600, 1280)
+    assert img.std() > 20 and len(np.unique(img.reshape(-1, 3), axis=0)) > 200  # text, tables, plots drawn
+
+    dom = _chromium("--dump-dom", index.as_uri(), tmp=tmp_path).stdout
+    assert dom.count("<table") >= 5 and "libero_10: success rate (%)" in dom and "paper SEAL" in dom
+    assert 'class="best"' in dom and "Paired differences" in dom
+
+    # The hostile rationale stays text in a real browser: no script ran, no element was injected.
+    page = _episode_page(report)
+    dom = _chromium("--dump-dom", page.as_uri(), tmp=tmp_path).stdout
+    assert "Grasped(soup) is true" in dom and "<video" in dom
+    assert 'data-pwned="1"' not in dom and "<img src=\"x\"" not in dom
+    assert "&lt;script&gt;document.body.setAttribute" in dom
