@@ -47,14 +47,13 @@ from seal.errors import InvalidInput, SealError
 
 # Shared with the VLM verifier so both speak to the SDKs, price calls and guard keys the same way.
 from seal.verify.vlm import (
+    gemini_is_transient,
     openai_is_transient,
     PRICES_PER_MTOK,
     VerdictCache,
     _require_key,
     _require_sdk,
     _Secrets,
-    _status_is_transient,
-    _transport_errors,
     cost_usd,
     encode_image,
 )
@@ -308,11 +307,7 @@ class _GeminiChat:
             log.info("could not delete uploaded file %s: %s", getattr(file, "name", "?"), type(exc).__name__)
 
     def is_transient(self, exc: BaseException) -> bool:
-        from google.genai import errors
-
-        if isinstance(exc, errors.APIError):
-            return _status_is_transient(exc.code)
-        return isinstance(exc, _transport_errors())
+        return gemini_is_transient(exc)
 
     async def aclose(self) -> None:
         await self._client.aio.aclose()

@@ -258,6 +258,15 @@ def openai_is_transient(exc: BaseException) -> bool:
     return isinstance(exc, _transport_errors())
 
 
+def gemini_is_transient(exc: BaseException) -> bool:
+    """Whether a google-genai error is worth retrying (transport trouble, 429, 5xx)."""
+    from google.genai import errors
+
+    if isinstance(exc, errors.APIError):
+        return _status_is_transient(exc.code)
+    return isinstance(exc, _transport_errors())
+
+
 def _status_is_transient(status: int | None) -> bool:
     return status is not None and (status in (408, 429) or status >= 500)
 
@@ -363,11 +372,7 @@ class _GeminiBackend:
         )
 
     def is_transient(self, exc: BaseException) -> bool:
-        from google.genai import errors
-
-        if isinstance(exc, errors.APIError):
-            return _status_is_transient(exc.code)
-        return isinstance(exc, _transport_errors())
+        return gemini_is_transient(exc)
 
     async def aclose(self) -> None:
         await self._client.aio.aclose()

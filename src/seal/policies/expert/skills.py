@@ -455,12 +455,7 @@ def place(s: SceneState, obj: str, target: str, knobs: Knobs, slot: tuple[int, i
         xy = np.array([*slot_point(s, obj, target, slot), 0.0])
     if not grasped:
         # Released (or dropped): back off upwards, then hand back to thinking.
-        if s.gripper_width < OPEN_WIDTH:
-            return Step(move(s.eef_pos, s.eef_pos + [0, 0, 0.02], OPEN))
-        clear = body.hi[2] + 0.06
-        if s.eef_pos[2] < clear:
-            return Step(move(s.eef_pos, np.array([*s.eef_pos[:2], clear + 0.02]), OPEN))
-        return Step(hold(OPEN), done=True)
+        return let_go_and_rise(s, body)
     # Steer the object's origin (not the hand) over the target: LIBERO's In/On test the
     # origin (On: within 3 cm of the support's origin), and a rim-held mug hangs several
     # centimetres off the hand.
@@ -507,6 +502,16 @@ def _holder(s: SceneState, target: str) -> str | None:
 def _footprint(body: Body) -> np.ndarray:
     """World-frame (x, y) extent of an upright object, whatever its yaw: its widest horizontal side."""
     return np.full(2, float(np.max(body.local_hi[:2] - body.local_lo[:2])))
+
+
+def let_go_and_rise(s: SceneState, body: Body) -> Step:
+    """After a release: open fully, rise clear of the object, then report done."""
+    if s.gripper_width < OPEN_WIDTH:
+        return Step(move(s.eef_pos, s.eef_pos + [0, 0, 0.02], OPEN))
+    clear = body.hi[2] + 0.06
+    if s.eef_pos[2] < clear:
+        return Step(move(s.eef_pos, np.array([*s.eef_pos[:2], clear + 0.02]), OPEN))
+    return Step(hold(OPEN), done=True)
 
 
 def _release_tolerance(s: SceneState, obj: str, target: str) -> np.ndarray:

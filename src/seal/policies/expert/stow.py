@@ -18,8 +18,8 @@ from __future__ import annotations
 import numpy as np
 
 from seal.policies.expert.articulated import Opening, opening
-from seal.policies.expert.skills import (CLOSE, HAND_HALF, OPEN, OPEN_WIDTH, YAW_TOL, Z_TOL, Knobs,
-                                         Step, _path_top, _yaw_error, carry, hold, move)
+from seal.policies.expert.skills import (CLOSE, HAND_HALF, OPEN, YAW_TOL, Z_TOL, Knobs,
+                                         Step, _path_top, _yaw_error, carry, hold, let_go_and_rise, move)
 from seal.sim.scene import SceneState
 
 ENTRY_CLEARANCE = 0.03  # the object's bottom this far above the region's floor while going in
@@ -48,12 +48,7 @@ def place_inside(s: SceneState, obj: str, target: str, knobs: Knobs) -> Step:
     body = s.bodies[obj]
     if not s.facts.get(f"Grasped({obj})", False):
         # Let go: open, then straight up (the hand is in front of the doorway) and done.
-        if s.gripper_width < OPEN_WIDTH:
-            return Step(move(s.eef_pos, s.eef_pos + [0, 0, 0.02], OPEN))
-        clear = body.hi[2] + 0.06
-        if s.eef_pos[2] < clear:
-            return Step(move(s.eef_pos, np.array([*s.eef_pos[:2], clear + 0.02]), OPEN))
-        return Step(hold(OPEN), done=True)
+        return let_go_and_rise(s, body)
     site = s.sites[target]
     half = np.abs(site.xmat) @ site.size
     p = body.pos
