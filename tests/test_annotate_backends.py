@@ -21,15 +21,17 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from http.server import BaseHTTPRequestHandler
 from pathlib import Path
 from urllib.parse import urlparse
 
 import av
 import numpy as np
 import pytest
-from _annotate_data import PLANS, make_v21
 from PIL import Image
+
+from _annotate_data import PLANS, make_v21
+from _local_http import scrub_env, serving
 
 from seal.annotate.backends import AnnotatorCallError, EpisodeInput, make_annotator
 from seal.annotate.pipeline import RunOptions, annotate_dataset, read_annotations
@@ -190,25 +192,13 @@ def _handler(server: Server):
 @pytest.fixture
 def server():
     fake = Server()
-    httpd = ThreadingHTTPServer(("127.0.0.1", 0), _handler(fake))
-    httpd.daemon_threads = True
-    fake.url = f"http://127.0.0.1:{httpd.server_port}"
-    thread = threading.Thread(target=httpd.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
-    thread.start()
-    yield fake
-    fake.release.set()
-    httpd.shutdown()
-    httpd.server_close()
-    thread.join(timeout=5)
+    with serving(fake, _handler(fake)):
+        yield fake
 
 
 @pytest.fixture(autouse=True)
 def clean_env(monkeypatch):
-    for var in ("OPENAI_API_KEY", "OPENAI_BASE_URL", "GOOGLE_API_KEY", "GEMINI_API_KEY"):
-        monkeypatch.delenv(var, raising=False)
-    for var in ("HTTP_PROXY", "HTTPS_PROXY", "ALL_PROXY", "http_proxy", "https_proxy", "all_proxy"):
-        monkeypatch.delenv(var, raising=False)
-    monkeypatch.setenv("NO_PROXY", "127.0.0.1,localhost")
+    scrub_env(monkeypatch)
 
 
 @pytest.fixture(scope="module")

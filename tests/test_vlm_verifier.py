@@ -17,10 +17,12 @@ import re
 import threading
 import time
 from dataclasses import dataclass, field
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from http.server import BaseHTTPRequestHandler
 
 import numpy as np
 import pytest
+
+from _local_http import scrub_env, serving
 from PIL import Image
 
 from seal.errors import InvalidInput
@@ -160,26 +162,13 @@ def _make_handler(server: FakeServer):
 @pytest.fixture
 def server():
     fake = FakeServer(url="")
-    httpd = ThreadingHTTPServer(("127.0.0.1", 0), _make_handler(fake))
-    httpd.daemon_threads = True
-    fake.url = f"http://127.0.0.1:{httpd.server_port}"
-    thread = threading.Thread(target=httpd.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
-    thread.start()
-    yield fake
-    fake.release.set()
-    httpd.shutdown()
-    httpd.server_close()
-    thread.join(timeout=5)
+    with serving(fake, _make_handler(fake)):
+        yield fake
 
 
 @pytest.fixture(autouse=True)
 def clean_env(monkeypatch):
-    """No real keys, URLs or proxies from the machine leak into these tests."""
-    for var in ("OPENAI_API_KEY", "OPENAI_BASE_URL", "GOOGLE_API_KEY", "GEMINI_API_KEY"):
-        monkeypatch.delenv(var, raising=False)
-    for var in ("HTTP_PROXY", "HTTPS_PROXY", "ALL_PROXY", "http_proxy", "https_proxy", "all_proxy"):
-        monkeypatch.delenv(var, raising=False)
-    monkeypatch.setenv("NO_PROXY", "127.0.0.1,localhost")
+    scrub_env(monkeypatch)
 
 
 # --------------------------------------------------------------------------- helpers
