@@ -21,9 +21,9 @@ from http.server import BaseHTTPRequestHandler
 
 import numpy as np
 import pytest
+from PIL import Image
 
 from _local_http import scrub_env, serving
-from PIL import Image
 
 from seal.errors import InvalidInput
 from seal.verify.base import VerifyRequest
