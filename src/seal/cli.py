@@ -374,6 +374,10 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--tasks", default="", help="comma-separated task ids (expert: all; steer: 0,1,7; runtime: 5)")
     bench.add_argument("--trials", type=int, default=50, help="expert/steer/runtime: trials (init states) per task; serve: round trips")
     bench.add_argument("--no-misaligned", action="store_true", help="expert: skip the misaligned setting")
+    bench.add_argument("--first-init", type=int, default=0,
+                       help="expert: first official init state (trials run first-init .. first-init+trials-1)")
+    bench.add_argument("--log", default=None,
+                       help="expert: JSONL file, one row per finished episode; re-running resumes from it")
     bench.add_argument("--suite", default="libero_10")
     bench.add_argument("--task", type=int, default=0)
     bench.add_argument("--k", type=int, default=10)

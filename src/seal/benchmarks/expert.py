@@ -1,58 +1,161 @@
 """`seal bench expert`: success of the scripted expert, clean and in its misaligned setting.
 
-Trials run over the official init states 0..trials-1 of each task, spread over worker
-processes (one world per task per process, no rendering).
+Trials run over the official init states ``first_init .. first_init+trials-1`` of each task,
+one episode per job, spread over worker processes (each keeps the world of the task it ran
+last, so a task's episodes on one worker share one world build; no rendering).
+
+A full LIBERO-10 run is 1,000 episodes, so with ``--log FILE`` every finished episode is
+appended to a JSONL file as it lands; running the same command again skips the episodes
+already there. Rows carry the code version (git commit, ``-dirty`` for uncommitted changes):
+a log written by other code is refused rather than silently mixed into the figures.
 """
 
 from __future__ import annotations
 
+import json
 import multiprocessing as mp
 import os
+import subprocess
+import time
+from pathlib import Path
 
 import numpy as np
 
+from seal.errors import InvalidInput
 from seal.sim.suites import get_task, task_count
 
+_SETTINGS = ("clean", "misaligned")
+_cache: dict = {}  # per worker process: the last task's world (built once per task, not per episode)
 
-def _run_task(job) -> dict:
-    suite, task_id, trials, knob_name = job
+
+def _episode(job: tuple) -> dict:
+    suite, task_id, knobs, init = job
     from seal.episode import run_policy_episode
     from seal.policies.expert.policy import FailureKnobs, ScriptedExpert
     from seal.sim.world import LiberoWorld
 
-    world = LiberoWorld((suite, task_id))
-    policy = ScriptedExpert.for_world(world, FailureKnobs.named(knob_name))
-    wins, steps, errors = 0, [], 0
+    if _cache.get("key") != (suite, task_id):
+        if "world" in _cache:
+            _cache.pop("world").close()
+        _cache["world"], _cache["key"] = LiberoWorld((suite, task_id)), (suite, task_id)
+    world = _cache["world"]
+    policy = ScriptedExpert.for_world(world, FailureKnobs.named(knobs))
+    r = run_policy_episode(world, policy, init_index=init)
+    return {"suite": suite, "task": task_id, "knobs": knobs, "init": init, "success": bool(r.success),
+            "steps": r.steps, "sim_error": bool(r.sim_error), "wall_s": round(r.wall_s, 2)}
+
+
+def code_version() -> str:
+    """The git commit of the running code, ``-dirty`` when the tree has uncommitted changes."""
+    root = Path(__file__).resolve().parents[3]
     try:
-        for i in range(min(trials, world.num_init_states)):
-            r = run_policy_episode(world, policy, init_index=i)
-            wins += r.success
-            errors += r.sim_error
-            steps.append(r.steps)
-    finally:
-        world.close()
-    return {"task": task_id, "knobs": knob_name, "success": wins / len(steps), "mean_steps": float(np.mean(steps)),
-            "sim_errors": errors}
+        commit = subprocess.run(["git", "-C", str(root), "rev-parse", "--short=12", "HEAD"], capture_output=True,
+                                text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no", "src"],
+                               capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return commit + ("-dirty" if dirty else "")
+
+
+def read_log(path: Path, version: str) -> dict[tuple, dict]:
+    """Episodes already in ``path``, keyed by (suite, task, knobs, init). Refuses foreign code versions."""
+    done: dict[tuple, dict] = {}
+    if not path.exists():
+        return done
+    for n, line in enumerate(path.read_text().splitlines(), 1):
+        if not line.strip():
+            continue
+        try:
+            row = json.loads(line)
+            key = (row["suite"], int(row["task"]), row["knobs"], int(row["init"]))
+        except (ValueError, KeyError, TypeError):
+            if n == len(path.read_text().splitlines()):
+                continue  # a line cut short by a crash mid-write: that episode simply runs again
+            raise InvalidInput(f"{path}:{n} is not an expert-benchmark row (expected JSON with suite, task, "
+                               f"knobs, init); use another --log file") from None
+        if row.get("version") != version:
+            raise InvalidInput(f"{path} holds episodes from code version {row.get('version')!r}, this is "
+                               f"{version!r}; results of different code must not be mixed: use another --log file")
+        done[key] = row
+    return done
+
+
+def _parse_tasks(suite: str, spec: str) -> list[int]:
+    if not spec:
+        return list(range(task_count(suite)))
+    try:
+        tasks = [int(t) for t in spec.split(",")]
+    except ValueError:
+        raise InvalidInput(f"--tasks must be comma-separated task ids, got {spec!r}") from None
+    for t in tasks:
+        get_task(suite, t)  # raises InvalidInput naming the valid range
+    return tasks
+
+
+def summarize(rows: list[dict], suite: str, trials: int, first_init: int) -> dict:
+    """The benchmark's JSON: per-task success (fractions) per setting, steps, failing inits."""
+    out: dict = {"suite": suite, "trials": trials, "first_init": first_init, "episodes": len(rows)}
+    for knobs in _SETTINGS:
+        mine = [r for r in rows if r["knobs"] == knobs]
+        if not mine:
+            continue
+        tasks = sorted({r["task"] for r in mine})
+        per_task = {t: [r for r in mine if r["task"] == t] for t in tasks}
+        success = {str(t): round(float(np.mean([r["success"] for r in rs])), 3) for t, rs in per_task.items()}
+        failed = {str(t): sorted(r["init"] for r in rs if not r["success"]) for t, rs in per_task.items()}
+        prefix = "" if knobs == "clean" else "misaligned_"
+        out[f"{prefix}per_task_success"] = success
+        out[f"{prefix}mean_success"] = round(float(np.mean(list(success.values()))), 3)
+        out[f"{prefix}failed_inits"] = {t: v for t, v in failed.items() if v}
+        if knobs == "clean":
+            out["mean_steps"] = round(float(np.mean([r["steps"] for r in mine])), 1)
+    out["sim_errors"] = sum(r["sim_error"] for r in rows)
+    return out
 
 
 def run(args) -> dict:
     suite = args.suite
-    tasks = range(task_count(suite)) if not args.tasks else [int(t) for t in args.tasks.split(",")]
-    for t in tasks:
-        get_task(suite, t)
+    tasks = _parse_tasks(suite, args.tasks)
+    first = int(getattr(args, "first_init", 0) or 0)
+    if args.trials < 1 or first < 0:
+        raise InvalidInput(f"--trials must be >= 1 and --first-init >= 0, got {args.trials} and {first}")
     settings = ["clean"] + ([] if args.no_misaligned else ["misaligned"])
-    jobs = [(suite, t, args.trials, k) for k in settings for t in tasks]
-    workers = args.workers or min(len(jobs), os.cpu_count() or 1)
-    with mp.get_context("spawn").Pool(workers) as pool:
-        rows = pool.map(_run_task, jobs, chunksize=1)
-    out: dict = {"suite": suite, "trials": args.trials}
-    clean = [r for r in rows if r["knobs"] == "clean"]
-    out["per_task_success"] = {str(r["task"]): round(r["success"], 3) for r in clean}
-    out["mean_success"] = round(float(np.mean([r["success"] for r in clean])), 3)
-    out["mean_steps"] = round(float(np.mean([r["mean_steps"] for r in clean])), 1)
-    out["sim_errors"] = sum(r["sim_errors"] for r in rows)
-    mis = [r for r in rows if r["knobs"] == "misaligned"]
-    if mis:
-        out["misaligned_per_task_success"] = {str(r["task"]): round(r["success"], 3) for r in mis}
-        out["misaligned_mean_success"] = round(float(np.mean([r["success"] for r in mis])), 3)
+    jobs = []
+    for t in tasks:
+        n_inits = len(get_task(suite, t).init_states())
+        last = min(first + args.trials, n_inits)
+        if last <= first:
+            raise InvalidInput(f"task {t} of {suite} has {n_inits} init states; --first-init {first} is past them")
+        jobs += [(suite, t, k, i) for k in settings for i in range(first, last)]
+    jobs.sort(key=lambda j: (j[1], j[2], j[3]))  # a task's episodes next to each other: one world per worker
+
+    version = code_version()
+    log = Path(args.log) if getattr(args, "log", None) else None
+    done = read_log(log, version) if log else {}
+    todo = [j for j in jobs if j not in done]
+    rows = [done[j] for j in jobs if j in done]
+    workers = max(1, min(args.workers or os.cpu_count() or 1, len(todo) or 1))
+
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    start = time.perf_counter()
+    # Progress goes to stderr so stdout stays one JSON object.
+    from rich.console import Console
+
+    with Progress(TextColumn("expert {task.description}"), BarColumn(), MofNCompleteColumn(),
+                  TextColumn("success {task.fields[rate]}"), TimeRemainingColumn(),
+                  console=Console(stderr=True)) as progress:
+        bar = progress.add_task(suite, total=len(jobs), completed=len(rows), rate="-")
+        with mp.get_context("spawn").Pool(workers) as pool, (log.open("a") if log else open(os.devnull, "w")) as fh:
+            for row in pool.imap_unordered(_episode, todo, chunksize=1):
+                row["version"] = version
+                fh.write(json.dumps(row) + "\n")
+                fh.flush()
+                rows.append(row)
+                clean = [r["success"] for r in rows if r["knobs"] == "clean"]
+                progress.update(bar, advance=1, rate=f"{np.mean(clean):.2f}" if clean else "-")
+    out = summarize(rows, suite, args.trials, first)
+    out["wall_s"] = round(time.perf_counter() - start, 1)
+    out["version"] = version
     return out
