@@ -10,9 +10,10 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+from _v30 import write_v30
 
 from seal.datasets import Episode, LeRobotReader, LeRobotWriter, open_dataset
-from seal.datasets.lerobot import AGENT_VIDEO_KEY, WRIST_VIDEO_KEY, _encode_video
+from seal.datasets.lerobot import AGENT_VIDEO_KEY, WRIST_VIDEO_KEY
 from seal.errors import InvalidInput
 
 
@@ -220,46 +221,8 @@ def test_reads_v30_layout(tmp_path):
     """A two-episode v3.0 dataset built by hand: one data file, one concatenated mp4 per camera."""
     root, fps = tmp_path / "v30", 20
     episodes = [make_episode(9, "open the drawer", seed=0), make_episode(6, "close the drawer", seed=1)]
-    lengths = [e.length for e in episodes]
-    starts = [0, lengths[0]]
-
-    data = root / "data/chunk-000/file-000.parquet"
-    data.parent.mkdir(parents=True)
-    pq.write_table(pa.table({
-        "observation.state": pa.FixedSizeListArray.from_arrays(
-            pa.array(np.concatenate([e.states for e in episodes]).ravel()), 8),
-        "action": pa.FixedSizeListArray.from_arrays(
-            pa.array(np.concatenate([e.actions for e in episodes]).ravel()), 7),
-        "timestamp": pa.array(np.concatenate([np.arange(n) / fps for n in lengths]).astype(np.float32)),
-        "frame_index": pa.array(np.concatenate([np.arange(n) for n in lengths])),
-        "episode_index": pa.array(np.repeat([0, 1], lengths)),
-        "index": pa.array(np.arange(sum(lengths))),
-        "task_index": pa.array(np.repeat([0, 1], lengths)),
-    }), data)
-    for key, attr in ((AGENT_VIDEO_KEY, "agent_images"), (WRIST_VIDEO_KEY, "wrist_images")):
-        _encode_video(np.concatenate([getattr(e, attr) for e in episodes]),
-                      root / f"videos/{key}/chunk-000/file-000.mp4", fps)
-
-    rows = []
-    for i, e in enumerate(episodes):
-        row = {"episode_index": i, "tasks": [e.instruction], "length": e.length,
-               "data/chunk_index": 0, "data/file_index": 0,
-               "dataset_from_index": starts[i], "dataset_to_index": starts[i] + e.length,
-               "meta/episodes/chunk_index": 0, "meta/episodes/file_index": 0,
-               "stats/action/mean": e.actions.mean(0).tolist()}
-        for key in (AGENT_VIDEO_KEY, WRIST_VIDEO_KEY):
-            row |= {f"videos/{key}/chunk_index": 0, f"videos/{key}/file_index": 0,
-                    f"videos/{key}/from_timestamp": starts[i] / fps,
-                    f"videos/{key}/to_timestamp": (starts[i] + e.length) / fps}
-        rows.append(row)
-    (root / "meta/episodes/chunk-000").mkdir(parents=True)
-    pq.write_table(pa.Table.from_pylist(rows), root / "meta/episodes/chunk-000/file-000.parquet")
-    video = {"dtype": "video", "shape": [224, 224, 3], "names": ["height", "width", "channels"]}
-    (root / "meta/info.json").write_text(json.dumps({
-        "codebase_version": "v3.0", "fps": fps, "robot_type": "panda", "total_episodes": 2,
-        "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
-        "video_path": "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4",
-        "features": {AGENT_VIDEO_KEY: video, WRIST_VIDEO_KEY: video}}))
+    write_v30(root, episodes, fps, lambda i, e: {"meta/episodes/chunk_index": 0, "meta/episodes/file_index": 0,
+                                                  "stats/action/mean": e.actions.mean(0).tolist()})
 
     reader = open_dataset(root)
     assert reader.num_episodes == 2
