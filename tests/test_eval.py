@@ -77,8 +77,10 @@ def test_parse_methods_and_config_hashes():
     # K does not change what `base` does, so it does not change its hash either
     assert MethodSpec(method="base", k=3).config_hash == MethodSpec(method="base", k=10).config_hash
     assert MethodSpec(k=3).config_hash != MethodSpec(k=10).config_hash
-    with pytest.raises(InvalidInput, match="valid: base, random, seal"):
+    with pytest.raises(InvalidInput, match="valid: base, random, value, seal"):
         parse_methods("sael")
+    with pytest.raises(InvalidInput, match="value_ckpt=RUN_DIR"):
+        parse_methods("value")
     with pytest.raises(InvalidInput, match="name=value"):
         parse_methods("seal:kk=3")
     with pytest.raises(InvalidInput, match="not a int"):
@@ -123,6 +125,30 @@ def test_tiny_run_end_to_end_and_resume(tmp_path):
         assert set(store.methods()) == {m.config_hash for m in methods}
     again = run_eval(str(db), methods, ["libero_10"], [0, 1], 2, options=options)
     assert (again.already_done, again.ran) == (8, 0)
+
+
+def test_value_method_runs_with_a_trained_checkpoint(tmp_path):
+    """V-GPS in the harness: the checkpoint's bytes name the method; the trial runs for real."""
+    pytest.importorskip("torch")
+    from test_train_value import _bandit
+
+    from seal.train.vgps import IQLConfig, train_value
+
+    run = tmp_path / "vgps"
+    train_value(_bandit(64, 0), run, IQLConfig(steps=2, batch_size=16, hidden=16))
+    (spec,) = parse_methods(f"value:k=3:value_ckpt={run}")
+    assert spec.label.startswith("value[ckpt=vgps")
+    before = spec.config_hash
+    summary = run_eval(str(tmp_path / "r.db"), [spec], ["libero_10"], [0], 1,
+                       options=RunOptions(out_dir=str(tmp_path / "runs"), video="none", max_steps=SHORT))
+    assert (summary.ran, summary.errors) == (1, 0)
+    with ResultStore(tmp_path / "r.db") as store:
+        (row,) = store.rows()
+    assert row.status == "ok" and 0 < row.steps <= SHORT + 5
+    train_value(_bandit(64, 0), run, IQLConfig(steps=4, batch_size=16, hidden=16))  # retrained in place
+    assert MethodSpec(method="value", k=3, value_ckpt=str(run)).config_hash != before
+    with pytest.raises(InvalidInput, match="no V-GPS checkpoint"):
+        MethodSpec(method="value", value_ckpt=str(tmp_path / "missing")).config_hash
 
 
 def test_crashing_trial_is_recorded_and_run_goes_on(tmp_path):

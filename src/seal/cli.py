@@ -20,7 +20,15 @@ def _cmd_run(args) -> int:
     from seal.verify import make_verifier
 
     config = SteerConfig(method=args.method, k=args.k, rounds=args.rounds, mode=args.mode,
-                         max_steps=args.max_steps, seed=args.seed, check_every=args.check_every)
+                         max_steps=args.max_steps, seed=args.seed, check_every=args.check_every,
+                         value_goal=args.value_goal)
+    scorer = None
+    if args.method == "value":
+        if not args.value_ckpt:
+            raise InvalidInput("--method value needs --value-ckpt (a `seal train value` run directory)")
+        from seal.train.vgps import VGPSScorer
+
+        scorer = VGPSScorer.load(args.value_ckpt)
     verifier = None if args.method != "seal" else make_verifier(
         args.verifier, model=args.model, base_url=args.base_url,
         false_positive=args.false_positive, false_negative=args.false_negative, seed=args.seed)
@@ -34,7 +42,8 @@ def _cmd_run(args) -> int:
         with console.status(f"{args.method} on {args.suite}/{args.task} init {args.init} (K={config.effective_k})"):
             result = run_steered(args.suite, args.task, args.init, Path(args.out), config=config, verifier=verifier,
                                  knobs=FailureKnobs.named(args.knobs), video=not args.no_video,
-                                 grids=not args.no_grids, mismatch=mismatch, render_mode=args.render, policy=policy)
+                                 grids=not args.no_grids, mismatch=mismatch, render_mode=args.render, policy=policy,
+                                 scorer=scorer)
     finally:
         if policy is not None:
             policy.close()
@@ -94,8 +103,35 @@ def _cmd_demos(args) -> int:
                        description=f"{spec.key}: {summary.recorded} recorded, {summary.failed} failed")
 
         summary = record_demos(args.suite, Path(args.out), episodes_per_task=args.episodes_per_task, tasks=tasks,
-                               knobs=FailureKnobs.named(args.knobs), progress=progress)
+                               knobs=FailureKnobs.named(args.knobs), progress=progress,
+                               keep_failures=args.keep_failures)
     print(json.dumps(summary.__dict__))
+    return 0
+
+
+def _cmd_train(args) -> int:
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from seal.train.pipeline import train_value_on_dataset
+    from seal.train.vgps import IQLConfig
+
+    cfg = IQLConfig(steps=args.steps, batch_size=args.batch_size, lr=args.lr, gamma=args.gamma,
+                    expectile=args.expectile, seed=args.seed)
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                  TextColumn("{task.fields[info]}"), TimeRemainingColumn(), console=Console(stderr=True)) as bar:
+        jobs: dict = {}
+
+        def progress(stage, done, total, metrics=None):
+            if stage not in jobs:
+                jobs[stage] = bar.add_task("reading episodes" if stage == "load" else "IQL updates", total=total,
+                                           info="")
+            info = f"q_loss {metrics['q_loss']:.4f}" if metrics and "q_loss" in metrics else ""
+            bar.update(jobs[stage], completed=done, total=total, info=info)
+
+        summary = train_value_on_dataset(Path(args.dataset), Path(args.out), goals=args.goals,
+                                         holdout=args.holdout, cfg=cfg, progress=progress)
+    print(json.dumps({k: summary[k] for k in ("train_transitions", "last", "heldout", "train_fit") if k in summary}))
     return 0
 
 
@@ -223,7 +259,10 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--task", type=int, default=0)
     run.add_argument("--init", type=int, default=0, help="official init state index")
     run.add_argument("--method", default="seal", choices=["base", "random", "value", "seal"],
-                     help="value needs a trained V-GPS scorer (not shipped yet)")
+                     help="value: V-GPS re-ranking with a `seal train value` checkpoint (--value-ckpt)")
+    run.add_argument("--value-ckpt", default=None, help="value: checkpoint file or run directory")
+    run.add_argument("--value-goal", default="task", choices=["task", "subplan"],
+                     help="value: condition the Q-function on the task (V-GPS) or the current sub-plan")
     run.add_argument("--k", type=int, default=10, help="candidates per sub-plan")
     run.add_argument("--rounds", type=int, default=2, help="sampling rounds before the fallback")
     run.add_argument("--verifier", default="oracle", help="oracle | openai | gemini")
@@ -275,7 +314,24 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("--episodes-per-task", type=int, default=10)
     rec.add_argument("--knobs", default="clean", choices=["clean", "misaligned"])
     rec.add_argument("--out", required=True)
+    rec.add_argument("--keep-failures", action="store_true",
+                     help="also write failed episodes (meta success=false), e.g. as contrast for value learning")
     rec.set_defaults(func=_cmd_demos)
+
+    train = sub.add_parser("train", help="learned models; `value`: the V-GPS baseline's IQL Q-function")
+    train.add_argument("what", choices=["value"])
+    train.add_argument("--dataset", required=True, help="LeRobot dataset (e.g. from `seal demos record --keep-failures`)")
+    train.add_argument("--out", required=True, help="run directory: checkpoint.pt, metrics.jsonl, summary.json")
+    train.add_argument("--goals", default="both", choices=["task", "subplan", "both"],
+                       help="goal texts to condition on: the task instruction, each sub-plan, or both")
+    train.add_argument("--steps", type=int, default=3000, help="gradient updates (re-running continues to this)")
+    train.add_argument("--batch-size", type=int, default=128)
+    train.add_argument("--lr", type=float, default=3e-4)
+    train.add_argument("--gamma", type=float, default=0.9, help="discount per 5-step chunk")
+    train.add_argument("--expectile", type=float, default=0.7, help="IQL's tau")
+    train.add_argument("--holdout", type=float, default=0.2, help="fraction of episodes held out for the check")
+    train.add_argument("--seed", type=int, default=0)
+    train.set_defaults(func=_cmd_train)
 
     suites = sub.add_parser("suites", help="evaluation suites: list, contact sheet, generate data, check")
     suites_sub = suites.add_subparsers(dest="suites_command", required=True)

@@ -1,7 +1,8 @@
 """Record scripted-expert demonstrations into a LeRobot dataset, resumably.
 
 Episode e of task t starts from official init state e. An episode is written only when it
-succeeds (like the filtered LIBERO datasets the paper annotates); a failed attempt is logged in
+succeeds (like the filtered LIBERO datasets the paper annotates), unless failures are asked for
+too (value learning wants them as contrast); every attempt is logged in
 ``meta/seal_attempts.jsonl`` so a re-run skips it too instead of retrying forever. Re-running the
 same command continues where it stopped.
 """
@@ -46,7 +47,10 @@ def _attempted(root: Path) -> set[tuple[str, int, int]]:
 
 
 def record_demos(suite: str, out: Path, *, episodes_per_task: int, tasks: list[int] | None = None,
-                 knobs: FailureKnobs | None = None, progress=None, render_mode: str = "stock") -> RecordSummary:
+                 knobs: FailureKnobs | None = None, progress=None, render_mode: str = "stock",
+                 keep_failures: bool = False) -> RecordSummary:
+    """Record expert episodes; ``keep_failures`` also writes failed ones (meta ``success`` False),
+    which offline RL (the V-GPS value function) needs as contrast to the successes."""
     tasks = list(range(task_count(suite))) if tasks is None else tasks
     specs = [get_task(suite, t) for t in tasks]  # validates every id before any work
     for spec in specs:
@@ -71,7 +75,7 @@ def record_demos(suite: str, out: Path, *, episodes_per_task: int, tasks: list[i
                 for e in todo:
                     rec = Recording()
                     result = run_policy_episode(world, policy, init_index=e, recording=rec)
-                    if result.success:
+                    if result.success or keep_failures:
                         writer.add(Episode(
                             instruction=spec.instruction,
                             agent_images=np.stack(rec.agent), wrist_images=np.stack(rec.wrist),
@@ -82,13 +86,13 @@ def record_demos(suite: str, out: Path, *, episodes_per_task: int, tasks: list[i
                             critical_frames=[min(f, len(rec.actions) - 1) if f >= 0 else -1
                                              for f in result.critical_frames],
                             meta={"suite": suite, "task_id": spec.task_id, "init_index": e,
-                                  "steps": result.steps, "knobs": (knobs or FailureKnobs()).__dict__,
+                                  "steps": result.steps, "success": bool(result.success),
+                                  "knobs": (knobs or FailureKnobs()).__dict__,
                                   # what the expert wrote at each <think>: (step, text) pairs
                                   "reasoning": [[int(s), t] for s, t in result.reasoning]},
                         ))
                         summary.recorded += 1
-                    else:
-                        summary.failed += 1
+                    summary.failed += not result.success
                     with open(out / ATTEMPTS, "a") as f:
                         f.write(json.dumps({"suite": suite, "task_id": spec.task_id, "init_index": e,
                                             "success": result.success, "steps": result.steps,

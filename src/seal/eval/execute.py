@@ -48,6 +48,7 @@ class TrialRunner:
         self.worker = worker_name or f"{socket.gethostname()}:{os.getpid()}"
         self._pool = None
         self._pool_key = None
+        self._scorers: dict = {}
 
     def close(self) -> None:
         if self._pool is not None:
@@ -71,6 +72,14 @@ class TrialRunner:
         row.wall_s = round(time.perf_counter() - start, 3)
         row.finished_at = time.time()
         return row
+
+    def _scorer(self, path: str):
+        """The V-GPS scorer of a checkpoint, loaded once per worker."""
+        if path not in self._scorers:
+            from seal.train.vgps import VGPSScorer
+
+            self._scorers[path] = VGPSScorer.load(path)
+        return self._scorers[path]
 
     def _pool_for(self, spec: TrialSpec, k: int):
         from seal.sim.pool import EnvPool
@@ -97,7 +106,8 @@ class TrialRunner:
 
         m = spec.method
         config = SteerConfig(method=m.method, k=m.k, rounds=m.rounds, mode=m.mode, seed=spec.seed,
-                             max_steps=self.options.max_steps)
+                             max_steps=self.options.max_steps, value_goal=m.value_goal)
+        scorer = self._scorer(m.value_ckpt) if m.method == "value" else None
         pool = self._pool_for(spec, config.effective_k)
         policy = expert_policy(pool.task, FailureKnobs.named(m.knobs), seed=spec.seed)
         verifier = None if m.method != "seal" else make_verifier(
@@ -107,7 +117,7 @@ class TrialRunner:
         eval_world = LiberoWorld(pool.task, render_mode=m.render) if m.mode == "replay" else None
         try:
             with Trace(out / "trace.jsonl") as trace:
-                steerer = Steerer(pool, policy, verifier, config, eval_world=eval_world, trace=trace,
+                steerer = Steerer(pool, policy, verifier, config, eval_world=eval_world, trace=trace, scorer=scorer,
                                   grid_dir=out / "grids" if self.options.grids and m.method != "base" else None)
                 result = steerer.run(spec.init_index)
         finally:

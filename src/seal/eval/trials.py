@@ -13,14 +13,15 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, fields
+from functools import lru_cache
+from pathlib import Path
 
 from seal.errors import InvalidInput
-from seal.steer.engine import METHODS
+from seal.steer.engine import METHODS, VALUE_GOALS
 from seal.verify import VERIFIERS
 
 KNOBS = ("clean", "misaligned")
-EVAL_METHODS = tuple(m for m in METHODS if m != "value")  # value has no trained scorer yet
 
 
 @dataclass(frozen=True)
@@ -38,13 +39,17 @@ class MethodSpec:
     knobs: str = "misaligned"  # the scripted expert's failure setting
     mode: str = "sync"
     render: str = "stock"
+    value_ckpt: str = ""  # value only: a `seal train value` checkpoint (file or run directory)
+    value_goal: str = "task"  # value only: what the Q-function is conditioned on (task or subplan)
 
     def __post_init__(self) -> None:
-        if self.method == "value":
-            raise InvalidInput("method 'value' needs a trained V-GPS scorer, which no command ships yet; "
-                               f"valid here: {', '.join(EVAL_METHODS)}")
+        if self.method == "value" and not self.value_ckpt:
+            raise InvalidInput("method 'value' needs a trained V-GPS checkpoint: value:value_ckpt=RUN_DIR "
+                               "(train one with `seal train value`)")
+        if self.value_goal not in VALUE_GOALS:
+            raise InvalidInput(f"unknown value_goal {self.value_goal!r}; valid: {', '.join(VALUE_GOALS)}")
         if self.method not in METHODS:
-            raise InvalidInput(f"unknown method {self.method!r}; valid: {', '.join(EVAL_METHODS)}")
+            raise InvalidInput(f"unknown method {self.method!r}; valid: {', '.join(METHODS)}")
         if self.verifier not in VERIFIERS:
             raise InvalidInput(f"unknown verifier {self.verifier!r}; valid: {', '.join(VERIFIERS)}")
         if self.knobs not in KNOBS:
@@ -62,6 +67,11 @@ class MethodSpec:
                 d.pop(name)
         if self.method == "base":
             d.pop("k")
+        if self.method != "value":
+            d.pop("value_ckpt")
+            d.pop("value_goal")
+        else:  # the weights, not the path, decide the results: retraining in place is a new method
+            d["value_ckpt"] = checkpoint_digest(self.value_ckpt)
         return d
 
     @property
@@ -75,9 +85,26 @@ class MethodSpec:
     @property
     def label(self) -> str:
         """Short column name for reports: the method, plus what differs from its defaults."""
-        default = MethodSpec(method=self.method).canonical()
+        default = MethodSpec(method=self.method, value_ckpt=self.value_ckpt).canonical()
         extra = [f"{k}={v}" for k, v in self.canonical().items() if k != "method" and default.get(k) != v]
+        if self.method == "value":  # which weights, by their run directory's name
+            extra.insert(0, f"ckpt={Path(self.value_ckpt).name}")
         return self.method + (f"[{','.join(extra)}]" if extra else "")
+
+
+def checkpoint_digest(path: str) -> str:
+    """sha1 of a value checkpoint's bytes (a run directory means its checkpoint.pt)."""
+    p = Path(path)
+    p = p / "checkpoint.pt" if p.is_dir() else p
+    if not p.is_file():
+        raise InvalidInput(f"no V-GPS checkpoint at {p}; train one with `seal train value`")
+    stat = p.stat()
+    return _digest(str(p.resolve()), stat.st_mtime_ns, stat.st_size)
+
+
+@lru_cache(maxsize=16)
+def _digest(path: str, mtime_ns: int, size: int) -> str:  # cached: labels and hashes ask often
+    return hashlib.sha1(Path(path).read_bytes()).hexdigest()[:12]
 
 
 def parse_methods(text: str, **defaults) -> list[MethodSpec]:
@@ -86,16 +113,16 @@ def parse_methods(text: str, **defaults) -> list[MethodSpec]:
     out = []
     for item in filter(None, (s.strip() for s in text.split(","))):
         method, *overrides = item.split(":")
-        spec = MethodSpec(method=method, **{k: v for k, v in defaults.items() if v is not None})
+        settings = {k: v for k, v in defaults.items() if v is not None}
         for ov in overrides:
             key, sep, value = ov.partition("=")
             if not sep or key not in names or key == "method":
                 raise InvalidInput(f"bad method option {ov!r} in {item!r}; write name=value with name in "
                                    f"{', '.join(n for n in names if n != 'method')}")
-            spec = replace(spec, **{key: _convert(key, value)})
-        out.append(spec)
+            settings[key] = _convert(key, value)
+        out.append(MethodSpec(method=method, **settings))  # validated once, with every option in place
     if not out:
-        raise InvalidInput(f"no methods given; valid: {', '.join(EVAL_METHODS)}")
+        raise InvalidInput(f"no methods given; valid: {', '.join(METHODS)}")
     hashes = [m.config_hash for m in out]
     if len(set(hashes)) != len(hashes):
         raise InvalidInput(f"the same method configuration is listed twice in {text!r}")

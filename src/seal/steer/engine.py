@@ -447,6 +447,9 @@ class Steerer:
         return self.pool.observe([slot], images=images, privileged_atoms=atoms)[0]
 
     def _verifier_images(self) -> bool:
+        """Whether the judge of this method (verifier or value scorer) looks at the frame."""
+        if self.config.method == "value":
+            return self.scorer is not None and self.scorer_needs_images
         return self.verifier is not None and self.config.method == "seal" and self.verifier.needs_images
 
     def _goal_atoms(self) -> list[str]:

@@ -42,8 +42,9 @@ def render_executed(spec, init_index: int, actions: np.ndarray, path: Path, *, r
 
 def run_steered(suite: str, task_id: int, init_index: int, out_dir: Path, *, config: SteerConfig, verifier,
                 knobs: FailureKnobs, video: bool = True, grids: bool = True, mismatch: PhysicsMismatch | None = None,
-                render_mode: str = "stock", workers: int | None = None, policy=None) -> SteerResult:
-    """``policy``: any `ReasoningPolicy` (e.g. a remote `OpenpiPolicy`); default the scripted expert."""
+                render_mode: str = "stock", workers: int | None = None, policy=None, scorer=None) -> SteerResult:
+    """``policy``: any `ReasoningPolicy` (e.g. a remote `OpenpiPolicy`); default the scripted expert.
+    ``scorer``: the `ChunkScorer` of the ``value`` method."""
     spec = get_task(suite, task_id)
     out_dir.mkdir(parents=True, exist_ok=True)
     policy = policy if policy is not None else expert_policy(spec, knobs, seed=config.seed)
@@ -51,7 +52,7 @@ def run_steered(suite: str, task_id: int, init_index: int, out_dir: Path, *, con
     try:
         with EnvPool(spec, k=config.effective_k, workers=workers, render_mode=render_mode, physics=mismatch) as pool, \
                 Trace(out_dir / "trace.jsonl") as trace:
-            steerer = Steerer(pool, policy, verifier, config, eval_world=eval_world, trace=trace,
+            steerer = Steerer(pool, policy, verifier, config, eval_world=eval_world, trace=trace, scorer=scorer,
                               grid_dir=out_dir / "grids" if grids else None)
             result = steerer.run(init_index)
     finally:

@@ -1,0 +1,303 @@
+"""V-GPS value function: an IQL-trained Q(image, state, goal text, action chunk), in one file.
+
+The baseline the paper compares against (pi0-V-GPS) samples K action chunks and executes the one
+a Q-function rates highest. The Q-function is learned offline with Implicit Q-Learning (IQL):
+
+    V(s, g)    <- expectile_tau of  min_i Q_target_i(s, a, g)          (never queries unseen actions)
+    Q_i(s,a,g) <- r + gamma * (1 - done) * V(s', g)
+
+Everything here is sized for a CPU: a 56x56 agent view through a three-layer CNN, the 8-d
+state, the executed chunk (5 x 7), and the goal text as hashed word/bigram buckets averaged
+by an EmbeddingBag (no pretrained language model can be downloaded here; words never seen in
+training land in untrained buckets, which is exactly the OOD weakness the paper points out).
+
+`train_value` writes ``checkpoint.pt`` every ``save_every`` updates (atomically) and a metrics
+JSONL as it goes; running it again on the same directory continues from the checkpoint.
+`VGPSScorer` loads a checkpoint and implements the steering engine's `ChunkScorer`.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import json
+import re
+import time
+import zlib
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from seal.errors import InvalidInput
+from seal.policies.base import ACTION_HORIZON
+from seal.train.transitions import IMAGE_SIDE, Transitions, chunk_of, downsample
+
+try:
+    import torch
+    from torch import nn
+    from torch.nn import functional as F
+except ImportError as exc:  # torch is an extra: the steering loop itself never needs it
+    raise ImportError("V-GPS training and scoring need PyTorch: pip install -e '.[train]' "
+                      "(pins torch==2.13.0, a CPU build)") from exc
+
+CHECKPOINT = "checkpoint.pt"
+METRICS = "metrics.jsonl"
+GOAL_BUCKETS = 4096
+
+
+@dataclass(frozen=True)
+class IQLConfig:
+    """Hyperparameters; everything that changes the result is here and saved with the weights."""
+
+    steps: int = 3000
+    batch_size: int = 128
+    lr: float = 3e-4
+    gamma: float = 0.9           # per chunk of 5 steps (~0.98 per control step)
+    expectile: float = 0.7       # IQL's tau: how optimistic V is about the data's best actions
+    polyak: float = 0.005        # target-network update rate
+    hidden: int = 256
+    goal_dim: int = 64
+    shift: int = 2               # random-shift augmentation, pixels (DrQ style)
+    seed: int = 0
+    save_every: int = 500
+    log_every: int = 50
+
+
+def goal_tokens(text: str) -> list[int]:
+    """Hashed lower-case words and word bigrams -> bucket ids (stable across processes: crc32)."""
+    words = re.findall(r"[a-z0-9]+", text.lower())
+    grams = words + [f"{a} {b}" for a, b in zip(words, words[1:])]
+    return [zlib.crc32(g.encode()) % GOAL_BUCKETS for g in grams] or [0]
+
+
+def _goal_batch(texts: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
+    """EmbeddingBag inputs (flat ids, offsets) for a batch of goal texts."""
+    ids, offsets = [], []
+    for t in texts:
+        offsets.append(len(ids))
+        ids.extend(goal_tokens(t))
+    return torch.tensor(ids, dtype=torch.long), torch.tensor(offsets, dtype=torch.long)
+
+
+class Encoder(nn.Module):
+    """(image, state, goal) -> feature vector shared by the Q and V heads."""
+
+    def __init__(self, cfg: IQLConfig):
+        super().__init__()
+        self.conv = nn.Sequential(
+            nn.Conv2d(3, 32, 5, stride=2), nn.ReLU(),   # 56 -> 26
+            nn.Conv2d(32, 64, 3, stride=2), nn.ReLU(),  # 26 -> 12
+            nn.Conv2d(64, 64, 3, stride=2), nn.ReLU(),  # 12 -> 5
+            nn.Flatten(), nn.Linear(64 * 5 * 5, cfg.hidden), nn.LayerNorm(cfg.hidden), nn.Tanh())
+        self.goal = nn.EmbeddingBag(GOAL_BUCKETS, cfg.goal_dim, mode="mean")
+        self.out_dim = cfg.hidden + 8 + cfg.goal_dim
+
+    def forward(self, image: torch.Tensor, state: torch.Tensor, goal: tuple[torch.Tensor, torch.Tensor]):
+        x = image.permute(0, 3, 1, 2).float() / 255.0
+        return torch.cat([self.conv(x), state, self.goal(*goal)], dim=-1)
+
+
+def _mlp(inp: int, hidden: int) -> nn.Module:
+    return nn.Sequential(nn.Linear(inp, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(),
+                         nn.Linear(hidden, 1))
+
+
+class ValueNets(nn.Module):
+    """One encoder, two Q heads (clipped double Q) and a V head."""
+
+    def __init__(self, cfg: IQLConfig):
+        super().__init__()
+        self.encoder = Encoder(cfg)
+        act_dim = 7 * ACTION_HORIZON
+        self.q1 = _mlp(self.encoder.out_dim + act_dim, cfg.hidden)
+        self.q2 = _mlp(self.encoder.out_dim + act_dim, cfg.hidden)
+        self.v = _mlp(self.encoder.out_dim, cfg.hidden)
+
+    def q(self, feat: torch.Tensor, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        x = torch.cat([feat, action], dim=-1)
+        return self.q1(x).squeeze(-1), self.q2(x).squeeze(-1)
+
+
+def _random_shift(images: torch.Tensor, pad: int, gen: torch.Generator) -> torch.Tensor:
+    """Pad by ``pad`` (edge) and crop back at a random offset per image."""
+    if pad == 0:
+        return images
+    n, h, w, _ = images.shape
+    padded = F.pad(images.permute(0, 3, 1, 2).float(), (pad,) * 4, mode="replicate").permute(0, 2, 3, 1)
+    dx = torch.randint(0, 2 * pad + 1, (n,), generator=gen)
+    dy = torch.randint(0, 2 * pad + 1, (n,), generator=gen)
+    rows = (dy[:, None] + torch.arange(h)[None])[:, :, None].expand(n, h, w)
+    cols = (dx[:, None] + torch.arange(w)[None])[:, None, :].expand(n, h, w)
+    return padded[torch.arange(n)[:, None, None], rows, cols]
+
+
+def iql_update(nets: ValueNets, target: ValueNets, opt: torch.optim.Optimizer, batch: dict,
+               cfg: IQLConfig) -> dict:
+    """One gradient step on the V (expectile) and Q (TD) losses; returns scalar metrics."""
+    feat = nets.encoder(batch["image"], batch["state"], batch["goal"])
+    with torch.no_grad():
+        t_feat = target.encoder(batch["image"], batch["state"], batch["goal"])
+        q_target = torch.min(*target.q(t_feat, batch["action"]))
+        next_v = nets.v(nets.encoder(batch["next_image"], batch["next_state"], batch["goal"])).squeeze(-1)
+        td_target = batch["reward"] + cfg.gamma * (1.0 - batch["done"]) * next_v
+    v = nets.v(feat.detach()).squeeze(-1)
+    diff = q_target - v
+    weight = torch.where(diff > 0, cfg.expectile, 1.0 - cfg.expectile)
+    v_loss = (weight * diff.pow(2)).mean()
+    q1, q2 = nets.q(feat, batch["action"])
+    q_loss = F.mse_loss(q1, td_target) + F.mse_loss(q2, td_target)
+    opt.zero_grad()
+    (q_loss + v_loss).backward()
+    opt.step()
+    with torch.no_grad():
+        for p, tp in zip(nets.parameters(), target.parameters()):
+            tp.lerp_(p, cfg.polyak)
+    return {"q_loss": q_loss.item(), "v_loss": v_loss.item(), "q_mean": q1.mean().item(), "v_mean": v.mean().item()}
+
+
+def _batch(data: Transitions, idx: np.ndarray, cfg: IQLConfig, gen: torch.Generator | None) -> dict:
+    image = torch.from_numpy(data.image[idx])
+    next_image = torch.from_numpy(data.next_image[idx])
+    if gen is not None:
+        image, next_image = _random_shift(image, cfg.shift, gen), _random_shift(next_image, cfg.shift, gen)
+    return {"image": image, "next_image": next_image,
+            "state": torch.from_numpy(data.state[idx]), "next_state": torch.from_numpy(data.next_state[idx]),
+            "action": torch.from_numpy(data.action[idx]), "goal": _goal_batch([data.goal[i] for i in idx]),
+            "reward": torch.from_numpy(data.reward[idx]), "done": torch.from_numpy(data.done[idx])}
+
+
+def data_fingerprint(data: Transitions) -> str:
+    """Identifies the training data, so a resumed run refuses a different dataset."""
+    h = hashlib.sha1()
+    for arr in (data.state, data.action, data.reward):
+        h.update(np.ascontiguousarray(arr).tobytes())
+    h.update("\n".join(data.goal).encode())
+    return h.hexdigest()[:12]
+
+
+def train_value(data: Transitions, out: Path, cfg: IQLConfig, *, progress=None, threads: int | None = 1) -> dict:
+    """Train (or continue training) a value function on ``data``; returns the last metrics.
+
+    ``threads``: torch's intra-op threads. One by default: these small batches gain little from
+    more, and on a shared 2-core machine oversubscribed threads made training ~10x slower.
+    """
+    if threads:
+        torch.set_num_threads(threads)
+    if len(data) < cfg.batch_size:
+        raise InvalidInput(f"{len(data)} transitions, fewer than one batch ({cfg.batch_size}); "
+                           "record more episodes or lower --batch-size")
+    out.mkdir(parents=True, exist_ok=True)
+    torch.manual_seed(cfg.seed)
+    fingerprint = data_fingerprint(data)
+    nets = ValueNets(cfg)
+    target = copy.deepcopy(nets).requires_grad_(False)
+    opt = torch.optim.Adam(nets.parameters(), lr=cfg.lr)
+    rng = np.random.default_rng(cfg.seed)
+    gen = torch.Generator().manual_seed(cfg.seed)
+    step = 0
+    ckpt_path = out / CHECKPOINT
+    if ckpt_path.exists():
+        ckpt = torch.load(ckpt_path, weights_only=False)
+        saved = {k: v for k, v in ckpt["config"].items() if k not in ("steps", "save_every", "log_every")}
+        mine = {k: v for k, v in asdict(cfg).items() if k not in ("steps", "save_every", "log_every")}
+        if saved != mine or ckpt["data"] != fingerprint:
+            raise InvalidInput(f"{ckpt_path} was trained with other settings or data "
+                               f"(saved {saved}, data {ckpt['data']}; now {mine}, data {fingerprint}); "
+                               "use another --out directory")
+        nets.load_state_dict(ckpt["nets"])
+        target.load_state_dict(ckpt["target"])
+        opt.load_state_dict(ckpt["opt"])
+        rng.bit_generator.state = ckpt["rng"]
+        gen.set_state(ckpt["gen"])
+        step = ckpt["step"]
+    last: dict = {}
+    t0, t_step = time.perf_counter(), step
+    with open(out / METRICS, "a") as log:
+        while step < cfg.steps:
+            idx = rng.integers(0, len(data), cfg.batch_size)
+            last = iql_update(nets, target, opt, _batch(data, idx, cfg, gen), cfg)
+            step += 1
+            if step % cfg.log_every == 0 or step == cfg.steps:
+                last |= {"step": step, "steps_per_s": round((step - t_step) / (time.perf_counter() - t0), 2)}
+                log.write(json.dumps(last) + "\n")
+                log.flush()
+            if step % cfg.save_every == 0 or step == cfg.steps:
+                _save(ckpt_path, {"config": asdict(cfg), "data": fingerprint, "step": step,
+                                  "nets": nets.state_dict(), "target": target.state_dict(), "opt": opt.state_dict(),
+                                  "rng": rng.bit_generator.state, "gen": gen.get_state()})
+            if progress:
+                progress(step, last)
+    return last | {"step": step}
+
+
+def _save(path: Path, obj: dict) -> None:
+    tmp = path.with_suffix(".tmp")
+    torch.save(obj, tmp)
+    tmp.replace(path)  # a crash mid-write leaves the previous checkpoint intact
+
+
+class VGPSScorer:
+    """`ChunkScorer` over a trained checkpoint: Q(obs, chunk, goal), the min of the two heads."""
+
+    needs_images = True
+
+    def __init__(self, nets: ValueNets, source: str = ""):
+        self.nets = nets.eval()
+        self.source = source
+
+    @classmethod
+    def load(cls, path: str | Path) -> VGPSScorer:
+        path = Path(path)
+        if path.is_dir():
+            path = path / CHECKPOINT
+        if not path.is_file():
+            raise InvalidInput(f"no V-GPS checkpoint at {path}; train one with `seal train value`")
+        ckpt = torch.load(path, weights_only=False)
+        nets = ValueNets(IQLConfig(**ckpt["config"]))
+        nets.load_state_dict(ckpt["nets"])
+        return cls(nets, source=str(path))
+
+    @torch.no_grad()
+    def score(self, obs, chunks: np.ndarray, goal: str) -> np.ndarray:
+        if obs.agent is None:
+            raise InvalidInput("the V-GPS scorer needs the agent-view image; observe with images=True")
+        k = len(chunks)
+        image = torch.from_numpy(downsample(obs.agent))[None].expand(k, IMAGE_SIDE, IMAGE_SIDE, 3)
+        state = torch.as_tensor(np.asarray(obs.state, dtype=np.float32))[None].expand(k, 8)
+        action = torch.from_numpy(np.stack([chunk_of(c) for c in chunks]))
+        feat = self.nets.encoder(image, state, _goal_batch([goal] * k))
+        return torch.min(*self.nets.q(feat, action)).numpy()
+
+
+@torch.no_grad()
+def evaluate_value(nets: ValueNets, data: Transitions, cfg: IQLConfig, batch: int = 256) -> dict:
+    """How well Q on the recorded chunks tracks the true discounted return (held-out data).
+
+    ``return_spearman``: rank correlation of Q(s, a, g) with gamma^(chunks to goal - 1) (0 when the
+    goal is never reached). ``goal_accuracy``: over chunks one or two chunks before their goal is
+    reached, how often Q rates the chunk higher for that goal than for another goal text seen in
+    the data — whether the goal text matters at all, which the value method relies on.
+    """
+    nets.eval()
+    qs, swapped = [], []
+    goals = sorted(set(data.goal))
+    rng = np.random.default_rng(0)
+    for lo in range(0, len(data), batch):
+        idx = np.arange(lo, min(lo + batch, len(data)))
+        b = _batch(data, idx, cfg, None)
+        qs.append(torch.min(*nets.q(nets.encoder(b["image"], b["state"], b["goal"]), b["action"])).numpy())
+        other = [goals[(goals.index(data.goal[i]) + 1 + rng.integers(len(goals) - 1)) % len(goals)]
+                 if len(goals) > 1 else data.goal[i] for i in idx]
+        feat = nets.encoder(b["image"], b["state"], _goal_batch(other))
+        swapped.append(torch.min(*nets.q(feat, b["action"])).numpy())
+    nets.train()
+    q, q_other = np.concatenate(qs), np.concatenate(swapped)
+    truth = np.where(data.to_goal > 0, cfg.gamma ** np.maximum(data.to_goal - 1, 0), 0.0)
+    from scipy.stats import spearmanr
+
+    rho = spearmanr(q, truth).statistic if np.ptp(truth) > 0 else float("nan")
+    near = (data.to_goal >= 1) & (data.to_goal <= 2)
+    acc = float(np.mean(q[near] > q_other[near])) if near.any() else float("nan")
+    return {"return_spearman": round(float(rho), 3), "goal_accuracy": round(acc, 3),
+            "transitions": len(data)}

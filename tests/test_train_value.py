@@ -1,0 +1,105 @@
+"""V-GPS value learning: transitions from demonstrations, IQL learning, resume, scorer, CLI."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from _annotate_data import make_v21, synthetic_episode
+
+from seal.cli import main
+from seal.errors import InvalidInput
+
+torch = pytest.importorskip("torch")
+
+from seal.train.pipeline import split_episodes  # noqa: E402
+from seal.train.transitions import Transitions, episode_transitions  # noqa: E402
+from seal.train.vgps import IQLConfig, VGPSScorer, goal_tokens, train_value  # noqa: E402
+
+
+def test_transitions_reward_the_chunk_that_reaches_each_goal():
+    ep = synthetic_episode(40, seed=0)  # four sub-plans, critical frames spread over the episode
+    ep.meta["success"] = True
+    tr = episode_transitions(ep, "both")
+    task = [i for i, g in enumerate(tr.goal) if g == ep.instruction]
+    assert len(task) == 8 and tr.reward[task].tolist() == [0] * 7 + [1]  # 40 steps = 8 chunks of 5
+    assert tr.to_goal[task].tolist() == [8, 7, 6, 5, 4, 3, 2, 1]
+    # sub-plan rows follow the task's, one run of chunks per sub-plan (texts may repeat: split by reward)
+    sub = [i for i in range(len(tr)) if i not in task]
+    ends = [i for i in sub if tr.reward[i] == 1]
+    assert len(ends) == len(ep.subplans) and all(tr.done[i] == 1 for i in ends)
+    start, first_row = 0, sub[0]
+    for text, frame, end in zip(ep.subplans, ep.critical_frames, ends):
+        assert {tr.goal[i] for i in range(first_row, end + 1)} == {text}
+        # the rewarded chunk ends with the action after which the sub-goal held (frame - 1)
+        last_action = frame - 1
+        chunk = tr.action[end].reshape(5, 7)
+        assert np.allclose(chunk[(last_action - start) % 5], ep.actions[last_action])
+        start, first_row = frame, end + 1
+    ep.meta["success"] = False
+    failed = episode_transitions(ep, "task")
+    assert failed.reward.sum() == 0 and (failed.to_goal == -1).all()
+
+
+def _bandit(n: int, seed: int) -> Transitions:
+    """One-chunk episodes: reward 1 when the chunk moves along x the way the goal text says."""
+    rng = np.random.default_rng(seed)
+    img = rng.integers(0, 255, (n, 56, 56, 3), dtype=np.uint8)
+    state = rng.normal(size=(n, 8)).astype(np.float32)
+    goals = rng.choice(["push the bowl left", "push the bowl right"], n).tolist()
+    act = rng.uniform(-1, 1, (n, 35)).astype(np.float32)
+    r = (np.sign(act[:, 0]) == np.where(["left" in g for g in goals], -1, 1)).astype(np.float32)
+    return Transitions(img, state, act, goals, r, r.copy(), img, state, np.where(r > 0, 1, -1).astype(np.int32))
+
+
+class _Obs:
+    def __init__(self, state):
+        self.agent, self.state = np.full((224, 224, 3), 90, np.uint8), state
+
+
+def test_iql_learns_which_chunk_serves_the_goal(tmp_path):
+    torch.manual_seed(0)
+    train_value(_bandit(1000, 0), tmp_path, IQLConfig(steps=150, batch_size=32, hidden=64, lr=1e-3, save_every=150))
+    scorer = VGPSScorer.load(tmp_path)
+    chunks = np.zeros((2, 16, 7), np.float32)
+    chunks[0, :, 0], chunks[1, :, 0] = -0.8, 0.8
+    right = 0
+    for i, goal in enumerate(["push the bowl left", "push the bowl right"] * 20):
+        s = scorer.score(_Obs(np.random.default_rng(i).normal(size=8)), chunks, goal)
+        right += (s[0] > s[1]) == ("left" in goal)
+    assert right >= 36, f"{right}/40 rankings right"
+
+
+def test_training_resumes_and_refuses_other_settings(tmp_path):
+    data = _bandit(300, 1)
+    train_value(data, tmp_path, IQLConfig(steps=10, batch_size=32, hidden=32, save_every=5, log_every=5))
+    train_value(data, tmp_path, IQLConfig(steps=20, batch_size=32, hidden=32, save_every=5, log_every=5))
+    steps = [json.loads(line)["step"] for line in (tmp_path / "metrics.jsonl").read_text().splitlines()]
+    assert steps == [5, 10, 15, 20]  # the second call went on from step 10
+    with pytest.raises(InvalidInput, match="other settings or data"):
+        train_value(data, tmp_path, IQLConfig(steps=30, batch_size=32, hidden=32, lr=1e-3))
+    with pytest.raises(InvalidInput, match="other settings or data"):
+        train_value(_bandit(300, 2), tmp_path, IQLConfig(steps=30, batch_size=32, hidden=32))
+
+
+def test_goal_hashing_is_stable_and_splits_are_disjoint():
+    assert goal_tokens("Pick up the BOOK") == goal_tokens("pick up the book")  # crc32, not Python's hash
+    assert goal_tokens("") == [0]
+    train, held = split_episodes(10, 0.2, seed=0)
+    assert len(held) == 2 and not set(train) & set(held) and sorted(train + held) == list(range(10))
+    with pytest.raises(InvalidInput, match="need at least 2"):
+        split_episodes(1, 0.2, seed=0)
+    with pytest.raises(InvalidInput, match=r"no V-GPS checkpoint"):
+        VGPSScorer.load("/nonexistent/run")
+
+
+def test_train_value_command_on_a_dataset(tmp_path, capsys):
+    make_v21(tmp_path / "ds", [40, 35, 45])
+    assert main(["train", "value", "--dataset", str(tmp_path / "ds"), "--out", str(tmp_path / "run"),
+                 "--steps", "20", "--batch-size", "16", "--holdout", "0.34"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["last"]["step"] == 20 and 0 <= out["heldout"]["goal_accuracy"] <= 1
+    summary = json.loads((tmp_path / "run/summary.json").read_text())
+    assert len(summary["heldout_episodes"]) == 1 and len(summary["train_episodes"]) == 2
+    assert (tmp_path / "run/checkpoint.pt").is_file()
