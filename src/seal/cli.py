@@ -419,8 +419,10 @@ def build_parser() -> argparse.ArgumentParser:
     ann.set_defaults(func=_cmd_annotate)
 
     bench = sub.add_parser("bench", help="benchmarks; each prints one JSON object")
-    bench.add_argument("what", choices=["sim", "expert", "steer", "runtime", "eval", "serve", "annotate"])
-    bench.add_argument("--dataset", default=None, help="annotate: LeRobot dataset directory")
+    bench.add_argument("what", choices=["sim", "expert", "steer", "runtime", "eval", "serve", "annotate",
+                                                       "value"])
+    bench.add_argument("--dataset", default=None, help="annotate/value: LeRobot dataset directory")
+    bench.add_argument("--steps", type=int, default=None, help="value: training updates on --dataset (default 300)")
     bench.add_argument("--backend", default="offline", choices=["offline", "gemini", "openai"],
                        help="annotate: annotation backend")
     bench.add_argument("--model", default=None, help="annotate: model name (gemini/openai)")

@@ -12,7 +12,8 @@ BENCHMARKS = {"sim": "seal.benchmarks.sim:run", "expert": "seal.benchmarks.exper
               "steer": "seal.benchmarks.steer:run_steer", "runtime": "seal.benchmarks.steer:run_runtime",
               "eval": "seal.benchmarks.eval:run",
               "serve": "seal.benchmarks.serve:run",
-              "annotate": "seal.benchmarks.annotate:run"}
+              "annotate": "seal.benchmarks.annotate:run",
+              "value": "seal.benchmarks.value:run"}
 
 
 def run_benchmark(name: str, args) -> dict:
