@@ -117,7 +117,7 @@ def test_demos_record_writes_lerobot_and_resumes(tmp_path):
     assert ds.num_episodes == 1 and ep.subplans == LIBERO_10_PLANS[5]
     assert ep.agent_images.shape == (ep.length, 224, 224, 3) and ep.states.shape == (ep.length, 8)
     assert 0 < ep.critical_frames[0] < ep.critical_frames[1] < ep.length
-    assert ds.episode_meta(0)["meta"]["init_index"] == 0
+    assert ds.episode_meta(0)["meta"]["init_index"] == 0 and ds.episode_meta(0)["meta"]["success"] is True
 
 
 def test_demos_record_refuses_bad_counts_before_any_work(tmp_path):
