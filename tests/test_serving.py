@@ -154,6 +154,31 @@ def test_openpi_reference_client_talks_to_seal_serve(obs):
         client._ws.close()
 
 
+def test_api_key_is_required_checked_and_never_shown():
+    """openpi's header both ways; a refused key fails at once (no retries), /healthz stays open."""
+    from urllib.request import urlopen
+
+    from openpi_client.websocket_client_policy import WebsocketClientPolicy
+
+    key = "s3cret-key"
+    server = PolicyServer(scripted_factory("clean"), scripted_info(), api_key=key)
+    with ServerThread(server) as srv:
+        assert urlopen(f"http://127.0.0.1:{srv.port}/healthz", timeout=5).status == 200
+        slow = dict(FAST, connect_retries=3, backoff_s=2.0)
+        for given, says in ((None, "it needs an API key"), ("wrong", "its API key was not accepted")):
+            t0 = time.perf_counter()
+            with pytest.raises(P.PolicyServerError, match=f"HTTP 401.*{says}.*OPENPI_API_KEY"):
+                OpenpiPolicy(ClientConfig(port=srv.port, api_key=given, **slow))
+            assert time.perf_counter() - t0 < 2.0  # no backoff: retrying cannot fix a key
+        config = ClientConfig(port=srv.port, api_key=key, **FAST)
+        assert key not in repr(config)
+        with OpenpiPolicy(config, task=BOOK.key) as policy:
+            assert policy.metadata["seal"]["reasoning"] is True
+        client = WebsocketClientPolicy(host="127.0.0.1", port=srv.port, api_key=key)  # openpi's own client
+        assert client.infer({P.CONTROL: "configure", "task": BOOK.key})["ok"] is True
+        client._ws.close()
+
+
 def test_server_names_what_is_wrong_with_a_request_and_keeps_serving(obs):
     with ServerThread(_scripted()) as srv:
         lane = _Lane(ClientConfig(port=srv.port, **FAST))

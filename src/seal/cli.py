@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
-from seal.errors import SealError
+from seal.errors import InvalidInput, SealError
 
 
 def _cmd_run(args) -> int:
@@ -63,7 +64,8 @@ def _remote_policy(args):
     planner = None if not args.planner else make_planner(args.planner, spec=spec, annotations=args.annotations,
                                                          model=args.planner_model, base_url=args.base_url)
     config = ClientConfig(host=args.host, port=args.port, transport=args.transport,
-                          request_timeout_s=args.request_timeout, prompt=args.prompt)
+                          request_timeout_s=args.request_timeout, prompt=args.prompt,
+                          api_key=os.environ.get("OPENPI_API_KEY") or None)  # secrets: environment only
     return OpenpiPolicy(config, task=spec.key, planner=planner)
 
 
@@ -193,8 +195,14 @@ def _cmd_report(args) -> int:
 def _cmd_serve(args) -> int:
     from seal.serving.server import PolicyServer, scripted_factory, scripted_info
 
+    api_key = None
+    if args.require_api_key:
+        api_key = os.environ.get("OPENPI_API_KEY")
+        if not api_key:
+            raise InvalidInput("--require-api-key: set the key in the OPENPI_API_KEY environment variable "
+                               "(never on the command line)")
     server = PolicyServer(scripted_factory(args.knobs, seed=args.seed), scripted_info(args.max_batch, plain=args.plain),
-                          host=args.host, port=args.port, default_task=args.task or None,
+                          host=args.host, port=args.port, default_task=args.task or None, api_key=api_key,
                           metadata={"policy": args.policy, "knobs": args.knobs, "action_dim": 7, "action_horizon": 16})
 
     def ready(port: int) -> None:  # one JSON line on stdout: scripts (and tests) read the port from it
@@ -397,6 +405,8 @@ def build_parser() -> argparse.ArgumentParser:
     serve.add_argument("--seed", type=int, default=0)
     serve.add_argument("--plain", action="store_true",
                        help="answer like a plain pi0 server: actions only, no reasoning, think or batching")
+    serve.add_argument("--require-api-key", action="store_true",
+                       help="refuse handshakes without 'Authorization: Api-Key $OPENPI_API_KEY' (/healthz stays open)")
     serve.set_defaults(func=_cmd_serve)
 
     ann = sub.add_parser("annotate", help="reasoning labels for a LeRobot dataset (resumable; prints a JSON summary)")

@@ -27,7 +27,7 @@ import logging
 import time
 import uuid
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Sequence
 
 import websockets
@@ -60,6 +60,8 @@ class ClientConfig:
     transport: str = "auto"
     max_connections: int = 16  # sockets used by the concurrent transport
     prompt: str = "task"  # servers that do not reason: send the task instruction or the current sub-plan
+    # sent as "Authorization: Api-Key <key>" (openpi's header); repr=False keeps it out of logs and reprs
+    api_key: str | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         if self.transport not in TRANSPORTS:
@@ -93,10 +95,22 @@ class _Lane:
                 time.sleep(min(cfg.backoff_s * 2 ** (attempt - 1), cfg.max_backoff_s))
             try:
                 # proxy=None: a policy server sits beside the simulator; never route it via HTTP_PROXY
+                headers = {"Authorization": f"Api-Key {cfg.api_key}"} if cfg.api_key else None
                 self.ws = ws_client.connect(cfg.uri, compression=None, max_size=None, proxy=None,
+                                            additional_headers=headers,
                                             open_timeout=cfg.connect_timeout_s, close_timeout=1.0, **_LEGACY)
                 metadata = msgpack_numpy.unpackb(self.ws.recv(timeout=cfg.connect_timeout_s))
                 return metadata
+            except websockets.InvalidStatus as exc:
+                if exc.response.status_code in (401, 403):  # retrying cannot fix a refused key
+                    self.close()
+                    raise PolicyServerError(
+                        f"the policy server at {cfg.uri} refused the connection (HTTP {exc.response.status_code}): "
+                        + ("its API key was not accepted" if cfg.api_key else "it needs an API key")
+                        + "; set OPENPI_API_KEY") from None
+                last = exc
+                self.close()
+                log.info("policy server %s: connect attempt %d failed: %s", cfg.uri, attempt + 1, exc)
             except (OSError, TimeoutError, websockets.WebSocketException, ValueError) as exc:
                 last = exc
                 self.close()

@@ -15,6 +15,7 @@ one at a time per session, so the event loop keeps reading other connections mea
 from __future__ import annotations
 
 import asyncio
+import hmac
 import json
 import logging
 import os
@@ -76,8 +77,10 @@ class _Session:
 
 class PolicyServer:
     def __init__(self, factory: PolicyFactory, info: P.ServerInfo, *, host: str = "127.0.0.1", port: int = 0,
-                 metadata: dict | None = None, default_task: str | None = None, max_sessions: int = 32):
+                 metadata: dict | None = None, default_task: str | None = None, max_sessions: int = 32,
+                 api_key: str | None = None):
         self.factory, self.info, self.host, self.port = factory, info, host, port
+        self._api_key = api_key  # when set, the handshake must carry "Authorization: Api-Key <key>"
         self.metadata = {**(metadata or {}), "seal": info.to_metadata()}
         self.default_task = default_task  # lets a plain openpi client (no configure) use the server
         self.max_sessions = max_sessions
@@ -87,7 +90,7 @@ class PolicyServer:
     # ---- running ---------------------------------------------------------------------------
     async def serve(self, stop: asyncio.Future, on_ready: Callable[[int], None] | None = None) -> None:
         async with ws_server.serve(self._handler, self.host, self.port, compression=None, max_size=None,
-                                   process_request=_health_check) as server:
+                                   process_request=self._process_request) as server:
             self.port = server.sockets[0].getsockname()[1]
             if on_ready is not None:
                 on_ready(self.port)
@@ -108,6 +111,15 @@ class PolicyServer:
         asyncio.run(main())
 
     # ---- one connection ----------------------------------------------------------------------
+    def _process_request(self, connection, request):
+        """Health check first (never needs a key), then the API key if one is required."""
+        import http
+
+        reply = _health_check(connection, request)
+        if reply is None and self._api_key and not _key_ok(request.headers.get("Authorization"), self._api_key):
+            return connection.respond(http.HTTPStatus.UNAUTHORIZED, "missing or wrong API key\n")
+        return reply
+
     async def _handler(self, ws: ws_server.ServerConnection) -> None:
         own_session = f"conn-{id(ws)}"
         packer = msgpack_numpy.Packer()
@@ -234,6 +246,12 @@ def _health_check(connection, request):
     if request.path == "/healthz":
         return connection.respond(http.HTTPStatus.OK, "OK\n")
     return None
+
+
+def _key_ok(header: str | None, key: str) -> bool:
+    """``Api-Key <key>`` (openpi's client) or ``Bearer <key>``; constant-time comparison."""
+    scheme, _, given = (header or "").partition(" ")
+    return scheme.lower() in ("api-key", "bearer") and hmac.compare_digest(given.strip().encode(), key.encode())
 
 
 # ---------------------------------------------------------------------------- in a thread / a process
