@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from seal.policies.expert.articulated import UPRIGHT_TOL, _act, _act_pose, _pose_error, _tilt
+from seal.policies.expert.articulated import UPRIGHT_TOL, _act, _act_pose, _misalign, _pose_error, _tilt
 from seal.policies.expert.skills import CLOSE, OPEN, OPEN_WIDTH, Step, _holder, hold
 from seal.sim.scene import Box, SceneState
 
@@ -33,6 +33,7 @@ FLOOR_GAP = 0.006  # the object's underside this far above the level's floor whi
 # (a 13.7 cm book stands as tall as the shelf's floor plus the lowered book).
 DIP = 0.15
 STAGE_GAP = 0.05  # in front of the opening: the turned object's far end this far outside
+TURN_RATE = 0.3  # rotation action cap while tipping the held object over
 TURNED = 0.15  # radians of pose error still counted as turned level
 LINED_UP = 0.01  # metres of height / lateral error allowed before going in
 OFF_LINE = 0.025  # ... and while going in, before backing out to line up again
@@ -118,7 +119,13 @@ def under_roof(s: SceneState, obj: str, target: str | None) -> Level | None:
     if target is None or obj not in s.bodies:
         return None
     lv = level(s, target)
-    if lv is None or lv.ceiling - lv.floor > float(s.bodies[obj].size[2]) + HAND_ROOM:
+    body = s.bodies[obj]
+    if lv is None or lv.ceiling - lv.floor > float(body.size[2]) + HAND_ROOM:
+        return None
+    # Turned level, the object stands on its side, as tall as its widest horizontal extent:
+    # a level lower than that (the shelf's 7 cm bottom level) it cannot be carried into.
+    room = lv.ceiling - max(lv.floor, s.table_z) - FLOOR_GAP
+    if float(np.max(body.local_hi[:2] - body.local_lo[:2])) > room:
         return None
     return lv
 
@@ -147,7 +154,12 @@ def place_under_roof(s: SceneState, obj: str, target: str, knobs) -> Step:
             if p[2] < high - 0.03 and lv.depth(p) > stage_depth - 0.02:
                 return Step(_act(s, np.array([*p[:2], high]), CLOSE, finger, DOWN))
             return Step(_act(s, stage, CLOSE, finger, DOWN))
-        return Step(_act_pose(s, stage, CLOSE, finger, point, cap=0.5))
+        if _misalign(s, finger) > TURNED:  # first the finger axis across, still pointing down
+            return Step(_act(s, stage, CLOSE, finger, DOWN))
+        # Then tip over slowly: a fast swing flings a 14 cm book out of a pinch at its edge.
+        action = _act_pose(s, stage, CLOSE, finger, point, cap=0.5)
+        action[3:6] *= min(1.0, TURN_RATE / (np.abs(action[3:6]).max() + 1e-9))
+        return Step(action)
     # Turned: the object's underside just above the floor, its box centred across the opening.
     dz = lv.floor + FLOOR_GAP + knobs.release_early - body.lo[2]
     z_goal = p[2] + dz
