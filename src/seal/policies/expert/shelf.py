@@ -35,6 +35,7 @@ DIP = 0.15
 STAGE_GAP = 0.05  # in front of the opening: the turned object's far end this far outside
 TURN_RATE = 0.3  # rotation action cap while tipping the held object over
 TURNED = 0.15  # radians of pose error still counted as turned level
+LINE_UP_GAP = 0.015  # the object's far end this far outside the opening while lining up
 LINED_UP = 0.01  # metres of height / lateral error allowed before going in
 OFF_LINE = 0.025  # ... and while going in, before backing out to line up again
 IN_PAST_FACE = 0.01  # the eef goes this far in past the opening's plane
@@ -171,7 +172,9 @@ def place_under_roof(s: SceneState, obj: str, target: str, knobs) -> Step:
         # Outside: line up in front of the opening (the far end clear of its plane), then in.
         if abs(lat_err) < LINED_UP and abs(dz) < LINED_UP:
             return Step(_act_pose(s, _point(lv, lat_goal, goal_depth, z_goal), CLOSE, finger, point, cap=0.5))
-        depth = min(lv.depth(p), -(ahead + 0.02))
+        # Line up close to the opening: the wrist, 22 cm behind the fingers, then stays clear
+        # of whatever stands on the table further out.
+        depth = -(ahead + LINE_UP_GAP)
         return Step(_act_pose(s, _point(lv, lat_goal, depth, z_goal), CLOSE, finger, point, cap=0.5))
     if abs(lat_err) > OFF_LINE or abs(dz) > OFF_LINE:
         # Off line while going in: back straight out.
