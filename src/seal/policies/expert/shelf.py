@@ -3,11 +3,11 @@
 `skills.place` lowers things from above; a shelf level 13.5 cm tall takes neither a standing
 book (13.7 cm) nor the hand above it. Like `stow` (the microwave's doorway), the object goes
 in through the open side, but a book held by its top edge cannot just be carried in: it
-hangs down. So the hand first turns level, pointing into the shelf, with the finger axis
+hangs down. So the hand first turns (nearly) level, pointing into the shelf, with the finger axis
 horizontal and across the opening; the book turns with it and lies on its long edge ahead
 of the fingers (its 11 cm width now upright, its length pointing in). Then the book is
 lined up with the level's floor, slid in until the fingertips reach the opening's plane,
-and let go a centimetre above the floor; the hand backs out, and points down again.
+and let go just above the floor; the hand backs out, and points down again.
 
 Geometry comes from the scene: the level's floor and ceiling, and which side is open, from
 the fixture's own collision boxes (`SceneState.fixture_boxes`), the region from its site.
@@ -40,7 +40,7 @@ LINED_UP = 0.01  # metres of height / lateral error allowed before going in
 OFF_LINE = 0.025  # ... and while going in, before backing out to line up again
 IN_PAST_FACE = 0.01  # the eef goes this far in past the opening's plane
 BACK_OUT = 0.06  # after letting go: back out until the fingertips are this far outside
-RISE_TO = 0.12  # then rise this far above the ceiling... (or the table), pointing down again
+RISE_TO = 0.12  # then rise this far above the ceiling, pointing down again
 
 
 @dataclass(frozen=True)
