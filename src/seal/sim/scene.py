@@ -100,6 +100,9 @@ class SceneState:
     # The arm's own joint positions (proprioception), base to wrist: lets a primitive notice
     # a posture the controller cannot leave by itself (e.g. the elbow locked straight).
     arm_qpos: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    # Static fixtures' collision geoms one by one (a shelf's boards and walls, a caddy's
+    # dividers): a fixture's overall box hides its openings, e.g. which side a shelf is open on.
+    fixture_boxes: dict[str, tuple[Box, ...]] = field(default_factory=dict)
 
 
 class SceneReader:
@@ -132,6 +135,10 @@ class SceneReader:
         self._pad_left = m.geom(pads["left_fingerpad"][0]).id
         self._pad_right = m.geom(pads["right_fingerpad"][0]).id
         self._table_z = _table_height(env)
+        # Fixtures with no moving parts (articulated ones are described by `articulations`);
+        # the table is left out (it is `table_z`).
+        self._static = tuple(n for n in env.fixtures_dict
+                             if n not in self._joints_of and not n.endswith("_table") and n in self._geoms)
 
     def read(self, facts: dict[str, bool] | None = None) -> SceneState:
         d = self._env.sim.data._data
@@ -151,7 +158,17 @@ class SceneReader:
             articulations={name: self._articulation(name, d) for name in self._articulated},
             joints_of=self._joints_of,
             arm_qpos=d.qpos[self._arm_qpos].copy(),
+            fixture_boxes={name: self._boxes(self._geoms[name], d) for name in self._static},
         )
+
+    def _boxes(self, geoms: np.ndarray, d) -> tuple[Box, ...]:
+        m = self._model
+        out = []
+        for g in geoms:
+            gmat = d.geom_xmat[g].reshape(3, 3)
+            out.append(Box(center=d.geom_xpos[g] + gmat @ m.geom_aabb[g, :3], xmat=gmat.copy(),
+                           half=m.geom_aabb[g, 3:].copy()))
+        return tuple(out)
 
     def _prepare_articulations(self, env):
         """Per articulated joint: its id and the colliding geoms of the part it moves; and
