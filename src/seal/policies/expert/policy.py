@@ -15,7 +15,7 @@ import numpy as np
 
 from seal.errors import InvalidInput
 from seal.policies.base import ACTION_HORIZON, PREDICT_HORIZON, ActionChunk, Reasoning
-from seal.policies.expert import skills, stow
+from seal.policies.expert import lay, skills, stow
 from seal.policies.expert.plan import SubPlan, category, decompose
 from seal.sim.goals import GoalAtom
 from seal.sim.observation import Observation
@@ -186,6 +186,8 @@ class ScriptedExpert:
         if sub.skill == "place":
             if stow.stowing(s, sub.obj, attempt.target) is not None:
                 return stow.place_inside(s, sub.obj, attempt.target, attempt.knobs)
+            if lay.laying_direction(s, sub.obj, attempt.target) is not None:
+                return lay.lay_inside(s, sub.obj, attempt.target)
             return skills.place(s, sub.obj, attempt.target, attempt.knobs, slot=self._slot(sub, attempt))
         from seal.policies.expert.articulated import ARTICULATED_SKILLS
 
