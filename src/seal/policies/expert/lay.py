@@ -20,10 +20,9 @@ from __future__ import annotations
 import numpy as np
 
 from seal.policies.expert.articulated import AWAY, DOWN, TILT_GAIN, _act, _frame, _rotvec, _unit
-from seal.policies.expert.skills import CLOSE, HAND_HALF, OPEN, OPEN_WIDTH, Step, _path_top
+from seal.policies.expert.skills import CLOSE, HAND_HALF, OPEN, OPEN_WIDTH, Step, _path_top, is_tall
 from seal.sim.scene import Body, SceneState
 
-TALL = 1.6  # an object is tall if its longest side is this many times its second longest
 LEVEL_TOL = 0.15  # radians of pointing error still counted as level / as pointing down
 TURN_XY = 0.03  # how close (metres) the hand gets to its turning point before tipping
 RELEASE_XY = 0.015  # how far the object's origin may be off its goal when let go
@@ -46,9 +45,9 @@ def laying_direction(s: SceneState, obj: str, target: str) -> np.ndarray | None:
     if not joints or not all(s.articulations[j].kind == "slide" for j in joints if j in s.articulations):
         return None
     body = s.bodies[obj]
-    ext = np.sort(body.local_hi - body.local_lo)[::-1]
-    if ext[0] < TALL * ext[1]:
+    if not is_tall(body):
         return None
+    ext = np.sort(body.local_hi - body.local_lo)[::-1]
     site = s.sites[target]
     half = np.abs(site.xmat) @ site.size
     floor, top = site.pos[2] - half[2], site.pos[2] + half[2]

@@ -460,6 +460,10 @@ def slot_point(s: SceneState, obj: str, target: str, slot: tuple[int, int]) -> n
     half = (np.abs(site.xmat) @ site.size)[:2]
     axis = _slot_axis(s, target)
     usable = max(half[axis] - SLOT_MARGIN, 0.0)
+    if target.endswith("contain_region"):
+        # Inside a container the whole object must clear the walls, not just its origin:
+        # lowered against a wall, a carton catches on the rim.
+        usable = max(half[axis] - float(_footprint(s.bodies[obj])[0]) / 2, 0.0)
     step = np.linspace(usable, -usable, n)[i]  # +x is away from the robot's base
     xy = site.pos[:2].copy()
     xy[axis] += step
@@ -502,6 +506,8 @@ def place(s: SceneState, obj: str, target: str, knobs: Knobs, slot: tuple[int, i
     # origin (On: within 3 cm of the support's origin), and a rim-held mug hangs several
     # centimetres off the hand.
     below = s.eef_pos[2] - body.lo[2]  # how far the object hangs below the gripper centre
+    if is_tall(body) and target.endswith("contain_region") and _holder(s, target) is not None:
+        bottom = min(bottom, _lowered_bottom(s, target, below))
     release_z = bottom + below + knobs.release_early
     goal, yaw = _release_pose(s, obj, target, xy[:2], release_z,
                               yaws=None if slot is None else (_slot_yaw(s, obj, target),))
@@ -535,6 +541,27 @@ def place(s: SceneState, obj: str, target: str, knobs: Knobs, slot: tuple[int, i
     return Step(hold(OPEN))
 
 
+TALL = 1.6  # an object is tall if its longest side is this many times its second longest
+
+
+def is_tall(body: Body) -> bool:
+    """A bottle or a carton (longest side well over the others), whichever way it lies."""
+    ext = np.sort(body.local_hi - body.local_lo)[::-1]
+    return bool(ext[0] >= TALL * ext[1])
+
+
+def _lowered_bottom(s: SceneState, target: str, below: float) -> float:
+    """How low a tall object's bottom may be lowered into a container before letting go: down
+    to the floor, or as far as the hand (over its top) stays above the container's rim.
+
+    Dropped from the rim, a carton falls its own height and topples, across the basket,
+    where the next object then has no room."""
+    site = s.sites[target]
+    floor = site.pos[2] - float((np.abs(site.xmat) @ site.size)[2])
+    rim = float(s.bodies[_holder(s, target)].hi[2])
+    return max(floor + 0.01, rim + 0.005 - HAND_ABOVE - below)
+
+
 def _holder(s: SceneState, target: str) -> str | None:
     """The fixture or object a region belongs to (a cabinet, a basket), None for a table region."""
     owner = max((n for n in s.bodies if target.startswith(n + "_")), key=len, default=None)
@@ -543,7 +570,7 @@ def _holder(s: SceneState, target: str) -> str | None:
 
 def _footprint(body: Body) -> np.ndarray:
     """World-frame (x, y) extent of an upright object, whatever its yaw: its widest horizontal side."""
-    return np.full(2, float(np.max(body.local_hi[:2] - body.local_lo[:2])))
+    return np.full(2, float(np.max(_horizontal_frame(body)[1])))
 
 
 def let_go_and_rise(s: SceneState, body: Body) -> Step:
