@@ -19,7 +19,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from seal.policies.expert.articulated import AWAY, DOWN, TILT_GAIN, _act, _frame, _rotvec, _unit
+from seal.policies.expert import skills
+from seal.policies.expert.articulated import (AWAY, DOWN, TILT_GAIN, _act, _flat, _frame, _joint, _open_sign, _openness,
+                                              _rotvec, _unit)
 from seal.policies.expert.skills import CLOSE, HAND_HALF, OPEN, OPEN_WIDTH, Step, _path_top, is_tall
 from seal.sim.scene import Body, SceneState
 
@@ -70,16 +72,18 @@ def lay_inside(s: SceneState, obj: str, target: str) -> Step:
         return _let_go_and_rise(s, body, finger)
     site = s.sites[target]
     holder = _holder_top(s, target)
-    hang = body.pos - s.eef_pos
-    reach = float(np.linalg.norm(hang))  # the origin's distance from the hand, along the bottle
-    goal_xy = site.pos[:2] - d[:2] * reach  # the hand's, with the bottle lying ahead of it
+    # The bottle lies along the fingers' pointing direction, hanging or level: its middle is
+    # this far ahead of the hand (a wine bottle's origin is at its bottom, not its middle).
+    reach = float((body.center - s.eef_pos) @ _pointing(s))
+    spot = _spot(s, target, body)
+    goal_xy = spot - d[:2] * reach  # the hand's, with the bottle lying ahead of it
     release_z = holder + HAND_HALF[1] + HAND_CLEAR
     level = _tip_error(s, finger, d) < LEVEL_TOL
     xy_err = float(np.linalg.norm(goal_xy - s.eef_pos[:2]))
     if level:
         # Lying: over the drawer, down to the release height, let go.
         goal = np.array([*goal_xy, release_z])
-        off = np.linalg.norm(site.pos[:2] - body.pos[:2])
+        off = np.linalg.norm(spot - body.center[:2])
         if off < RELEASE_XY and abs(s.eef_pos[2] - release_z) < 0.01:
             return Step(_tip(s, s.eef_pos, OPEN, finger, d))
         return Step(_tip(s, goal, CLOSE, finger, d, cap=0.6))
@@ -118,6 +122,26 @@ def _tip_rotation(s: SceneState, finger: np.ndarray, point: np.ndarray) -> np.nd
 
 def _tip_error(s: SceneState, finger: np.ndarray, point: np.ndarray) -> float:
     return float(np.linalg.norm(_tip_rotation(s, finger, point)))
+
+
+def _spot(s: SceneState, target: str, body: Body) -> np.ndarray:
+    """Where the lying object's middle goes: the region's centre, moved along the drawer's
+    pull to the middle of the part that is out of the cabinet (the region runs on under the
+    cabinet's face, which a bottle dropped from above would land on)."""
+    site = s.sites[target]
+    xy = site.pos[:2].copy()
+    a = _joint(s, target, want_open=False)
+    pull = _unit(_flat(a.axis * _open_sign(a)))[:2]
+    corners = np.array([[x, y] for x in (a.part.lo[0], a.part.hi[0]) for y in (a.part.lo[1], a.part.hi[1])])
+    front = float(np.max(corners @ pull))  # the drawer's front, along the pull
+    out = (front - _openness(a), front)  # the stretch that is out of the cabinet
+    half = float(np.abs(site.xmat[:2, :2] @ site.size[:2]) @ np.abs(pull))  # the region's half depth
+    centre = float(xy @ pull)
+    radius = float(np.min(skills._horizontal_frame(body)[1])) / 2
+    lo = max(out[0], centre - half) + radius
+    hi = min(out[1], centre + half) - radius
+    along = (lo + hi) / 2 if lo <= hi else centre
+    return xy + (along - centre) * pull
 
 
 def _holder_top(s: SceneState, target: str) -> float:
