@@ -542,12 +542,13 @@ def place(s: SceneState, obj: str, target: str, knobs: Knobs, slot: tuple[int, i
 
 
 TALL = 1.6  # an object is tall if its longest side is this many times its second longest
+THICK = 0.025  # ... and its shortest side at least this (a box of butter is long but flat)
 
 
 def is_tall(body: Body) -> bool:
     """A bottle or a carton (longest side well over the others), whichever way it lies."""
     ext = np.sort(body.local_hi - body.local_lo)[::-1]
-    return bool(ext[0] >= TALL * ext[1])
+    return bool(ext[0] >= TALL * ext[1] and ext[2] >= THICK)
 
 
 def _lowered_bottom(s: SceneState, target: str, below: float) -> float:
