@@ -9,8 +9,9 @@ So the bottle, held by its cap and hanging straight down, is turned level in the
 hand first turns its finger axis across the drawer's long side, then tips forward about the
 finger axis until it points along the long side (away from the robot), which swings the
 bottle up in front of the hand. Lying level, it is lowered until the hand (pointing sideways,
-its long side along the finger axis) just clears the cabinet, and let go over the drawer; it
-drops flat the last few centimetres.
+its long side along the finger axis) just clears the cabinet, and let go over the part of the
+drawer that is out of the cabinet; it drops flat (a few centimetres into the top drawer, about
+20 cm into the bottom one) and stays level.
 
 Rules are reactive, like the other skills: the action is a function of the current state.
 """
@@ -27,7 +28,7 @@ from seal.sim.scene import Body, SceneState
 
 LEVEL_TOL = 0.15  # radians of pointing error still counted as level / as pointing down
 TURN_XY = 0.03  # how close (metres) the hand gets to its turning point before tipping
-RELEASE_XY = 0.015  # how far the object's origin may be off its goal when let go
+RELEASE_XY = 0.015  # how far the object's middle may be off its goal when let go
 HAND_CLEAR = 0.012  # the level hand's lower side this far above the fixture when letting go
 CARRY_CLEAR = 0.04  # the hanging object's bottom this far above anything on the way
 TIPPING = 0.1  # radians off pointing down that count as tipping (the hand drifts meanwhile)
@@ -70,7 +71,6 @@ def lay_inside(s: SceneState, obj: str, target: str) -> Step:
     finger = np.cross(d, [0.0, 0.0, 1.0])
     if not s.facts.get(f"Grasped({obj})", False):
         return _let_go_and_rise(s, body, finger)
-    site = s.sites[target]
     holder = _holder_top(s, target)
     # The bottle lies along the fingers' pointing direction, hanging or level: its middle is
     # this far ahead of the hand (a wine bottle's origin is at its bottom, not its middle).
