@@ -160,12 +160,26 @@ _BODY = ("pos", "quat", "local_lo", "local_hi", "lo", "hi")
 
 
 def _body_to(b: Body) -> dict:
-    return {k: getattr(b, k) for k in _BODY}
+    out = {k: getattr(b, k) for k in _BODY}
+    if b.parts:  # optional on the wire: fixtures have none
+        out["parts"] = [_box_to(g) for g in b.parts]
+    return out
+
+
+def _box_to(g: Box) -> dict:
+    return {"center": g.center, "xmat": g.xmat, "half": g.half}
+
+
+def _box_from(g: Any, what: str) -> Box:
+    g = _need(g, ("center", "xmat", "half"), what)
+    return Box(center=_arr(g["center"], f"{what}.center", (3,)), xmat=_arr(g["xmat"], f"{what}.xmat", (3, 3)),
+               half=_arr(g["half"], f"{what}.half", (3,)))
 
 
 def _body_from(d: Any, what: str) -> Body:
     d = _need(d, _BODY, what)
-    return Body(**{k: _arr(d[k], f"{what}.{k}", (4,) if k == "quat" else (3,)) for k in _BODY})
+    parts = tuple(_box_from(g, f"{what}.parts") for g in d.get("parts", ()))
+    return Body(**{k: _arr(d[k], f"{what}.{k}", (4,) if k == "quat" else (3,)) for k in _BODY}, parts=parts)
 
 
 def scene_to_wire(s: SceneState) -> dict:

@@ -24,6 +24,9 @@ class Body:
     local_hi: np.ndarray
     lo: np.ndarray  # (3,) axis-aligned box around its geoms, world frame
     hi: np.ndarray
+    # A movable object's collision geoms one by one (empty for fixtures): the shape under the
+    # overall box, e.g. a bottle's neck is much narrower than its body.
+    parts: tuple[Box, ...] = ()
 
     @property
     def center(self) -> np.ndarray:
@@ -114,6 +117,7 @@ class SceneReader:
         self._model = m
         self._geoms: dict[str, np.ndarray] = {}
         names = list(env.objects_dict) + list(env.fixtures_dict)
+        self._movable = set(env.objects_dict)
         for name in names:
             root = env.obj_body_id[name]
             subtree = {b for b in range(m.nbody) if _is_descendant(m, b, root)}
@@ -207,11 +211,7 @@ class SceneReader:
         else:
             zero = np.zeros(3)
             part = Body(pos=pos, quat=quat, local_lo=zero, local_hi=zero, lo=pos.copy(), hi=pos.copy())
-        boxes = []
-        for g in geoms:
-            gmat = d.geom_xmat[g].reshape(3, 3)
-            centre, half = m.geom_aabb[g, :3], m.geom_aabb[g, 3:]
-            boxes.append(Box(center=d.geom_xpos[g] + gmat @ centre, xmat=gmat.copy(), half=half.copy()))
+        boxes = _boxes(m, d, geoms)
         hinge = int(m.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_HINGE)
         return Articulation(kind="hinge" if hinge else "slide", qpos=float(d.qpos[m.jnt_qposadr[j]]),
                             range=m.jnt_range[j].copy(), axis=d.xaxis[j].copy(), anchor=d.xanchor[j].copy(),
@@ -223,8 +223,9 @@ class SceneReader:
         rot = d.xmat[bid].reshape(3, 3)
         corners = _geom_corners(self._model, d, self._geoms[name])  # (n, 3) world
         local = (corners - pos) @ rot
+        parts = _boxes(self._model, d, self._geoms[name]) if name in self._movable else ()
         return Body(pos=pos, quat=quat, local_lo=local.min(0), local_hi=local.max(0),
-                    lo=corners.min(0), hi=corners.max(0))
+                    lo=corners.min(0), hi=corners.max(0), parts=parts)
 
     def _sites(self, d) -> dict[str, Site]:
         m = self._model
@@ -238,6 +239,16 @@ class SceneReader:
 
 
 _SIGNS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=np.float64)
+
+
+def _boxes(m, d, geoms: np.ndarray) -> tuple[Box, ...]:
+    """Each geom's bounding box, posed in the world."""
+    out = []
+    for g in geoms:
+        gmat = d.geom_xmat[g].reshape(3, 3)
+        centre, half = m.geom_aabb[g, :3], m.geom_aabb[g, 3:]
+        out.append(Box(center=d.geom_xpos[g] + gmat @ centre, xmat=gmat.copy(), half=half.copy()))
+    return tuple(out)
 
 
 def _geom_corners(m, d, geoms: np.ndarray) -> np.ndarray:

@@ -15,7 +15,7 @@ import numpy as np
 
 from seal.errors import InvalidInput
 from seal.policies.base import ACTION_HORIZON, PREDICT_HORIZON, ActionChunk, Reasoning
-from seal.policies.expert import shelf, skills, stow, upright
+from seal.policies.expert import lay, shelf, skills, stow, upright
 from seal.policies.expert.plan import SubPlan, category, decompose
 from seal.sim.goals import GoalAtom
 from seal.sim.observation import Observation
@@ -190,7 +190,9 @@ class ScriptedExpert:
                 return shelf.place_under_roof(s, sub.obj, attempt.target, attempt.knobs)
             if upright.standing_in(s, sub.obj, attempt.target):  # a book into a caddy's slot
                 return upright.place_standing(s, sub.obj, attempt.target, attempt.knobs)
-            return skills.place(s, sub.obj, attempt.target, attempt.knobs, slot=self._slot(sub, attempt))
+            if lay.laying_direction(s, sub.obj, attempt.target) is not None:  # a bottle into a drawer
+                return lay.lay_inside(s, sub.obj, attempt.target)
+            return skills.place(s, sub.obj, attempt.target, attempt.knobs, slot=self._slot(sub, attempt, s))
         from seal.policies.expert.articulated import ARTICULATED_SKILLS
 
         fn = ARTICULATED_SKILLS.get(sub.skill)
@@ -198,12 +200,16 @@ class ScriptedExpert:
             raise InvalidInput(f"no motion primitive for skill {sub.skill!r} ({sub.text!r}) in task {self.task}")
         return fn(s, sub.obj, sub.goal)
 
-    def _slot(self, sub: SubPlan, attempt: _Attempt) -> tuple[int, int] | None:
+    def _slot(self, sub: SubPlan, attempt: _Attempt, s: SceneState) -> tuple[int, int] | None:
         """(i, n): this is the i-th of n objects the plan puts on the same region."""
         sharing = [p.obj for p in self._plans or [] if p.skill == "place" and p.target == sub.target]
         # Containers (a basket) take several objects dropped in anywhere; a surface region
-        # (the stove's burner area) must not get them stacked.
-        if attempt.target != sub.target or sub.obj not in sharing or sub.target.endswith("contain_region"):
+        # (the stove's burner area) must not get them stacked. Nor a container one of them
+        # stands tall in (a milk carton in the middle of the basket leaves no room beside it).
+        if attempt.target != sub.target or sub.obj not in sharing:
+            return None
+        if sub.target.endswith("contain_region") and not any(
+                o in s.bodies and skills.is_tall(s.bodies[o]) for o in sharing):
             return None
         return sharing.index(sub.obj), len(sharing)
 

@@ -33,6 +33,7 @@ YAW_TOL = 0.1  # radians of finger-axis error allowed before descending
 # Panda hand geometry relative to the eef site: the fingertips reach 13 mm below it and the
 # pads span 5 mm below to 12 mm above it. Going lower presses the fingertips into the table.
 FINGERTIP_BELOW = 0.013
+PAD_BELOW, PAD_ABOVE = 0.005, 0.012
 TABLE_CLEARANCE = 0.003
 # Footprint of the open hand around the eef site, in the finger-axis frame (along, across):
 # the hand body spans +-10.5 cm along the finger axis from 2.2 cm above the site up; the open
@@ -229,25 +230,60 @@ def _round_candidates(s: SceneState, body: Body) -> list[tuple[np.ndarray, float
 
 
 def _box_candidates(s: SceneState, body: Body) -> list[tuple[np.ndarray, float, float]]:
-    """(point, yaw, preference cost): across the narrow side first, centred first."""
+    """(point, yaw, preference cost): across the narrow side first, centred first.
+
+    Sides and widths are the object's horizontal ones whichever way its own frame points (a
+    ketchup bottle's frame has its long axis along local y), and the width between the pads
+    is the object's at the height they close (a bottle's cap, not its body)."""
     centre = body.center
     z = _box_grasp_z(s, body)
-    ext = body.local_hi - body.local_lo
+    yaw0, ext = _horizontal_frame(body)
     narrow, wide = (0.0, np.pi / 2) if ext[0] <= ext[1] else (np.pi / 2, 0.0)
     out = []
     for turn, cost in ((narrow, 0.0), (wide, 0.05)):
-        across = ext[0] if turn == 0.0 else ext[1]  # object width between the fingers
+        yaw = yaw0 + turn
+        across = _slice_width(body, yaw, z)  # object width between the fingers
+        if across is None:
+            across = ext[0] if turn == 0.0 else ext[1]
         slack = (PAD_GAP - across) / 2 - 0.006
         if slack < 0:
             continue
-        yaw = body.yaw + turn
         axis = np.array([np.cos(yaw), np.sin(yaw)])
         for shift in np.linspace(-slack, slack, 5) if slack > 0.004 else (0.0,):
             xy = centre[:2] + shift * axis
             out.append((np.array([*xy, z]), yaw, cost + abs(shift)))
     if not out:  # wider than the open hand both ways: try anyway, across the narrow side
-        out.append((np.array([*centre[:2], z]), body.yaw + narrow, 0.0))
+        out.append((np.array([*centre[:2], z]), yaw0 + narrow, 0.0))
     return out
+
+
+def _horizontal_frame(body: Body) -> tuple[float, np.ndarray]:
+    """(yaw of the object's first horizontal local axis, its extents along that axis and the
+    other horizontal one). Objects whose local z is vertical give (body.yaw, ext[:2]); others
+    (LIBERO's bottles stand along local y) give their real horizontal sides."""
+    w, x, y, z = body.quat
+    rot = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                    [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                    [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    up = int(np.argmax(np.abs(rot[2])))
+    i, j = [k for k in range(3) if k != up]
+    ext = body.local_hi - body.local_lo
+    return float(np.arctan2(rot[1, i], rot[0, i])), np.array([ext[i], ext[j]])
+
+
+def _slice_width(body: Body, yaw: float, z: float) -> float | None:
+    """The object's extent along finger yaw ``yaw`` over the height the pads cover with the
+    eef site at ``z`` (None without per-geom parts, or if no part is at that height)."""
+    axis = np.array([np.cos(yaw), np.sin(yaw), 0.0])
+    lo_z, hi_z = z - PAD_BELOW, z + PAD_ABOVE
+    lo, hi = np.inf, -np.inf
+    for box in body.parts:
+        if box.hi[2] < lo_z or box.lo[2] > hi_z:
+            continue
+        c = float(box.center @ axis)
+        r = float(np.abs(box.xmat.T @ axis) @ box.half)
+        lo, hi = min(lo, c - r), max(hi, c + r)
+    return None if hi < lo else hi - lo
 
 
 def _intrusion(s: SceneState, point: np.ndarray, yaw: float, own: str) -> float:
@@ -316,7 +352,7 @@ def pick(s: SceneState, name: str, knobs: Knobs, by_handle: bool = False) -> Ste
     # grasps only a fully shut gripper counts as a miss (the Grasped fact follows shortly).
     # A box or can is held across its full width: fingers closed well past it without a
     # grasp pinched only an edge or a corner (or closed on nothing).
-    empty = RIM_EMPTY_WIDTH if _is_rim(name) or by_handle else max(EMPTY_WIDTH, _grip_width(name, body, yaw) - 0.005)
+    empty = RIM_EMPTY_WIDTH if _is_rim(name) or by_handle else max(EMPTY_WIDTH, _grip_width(name, body, yaw, point[2]) - 0.005)
     # At the grasp point (a flat object's pads must come fully down, or they pass over it);
     # or a little above it with the pads already well down the object's sides, where rubbing
     # fingers can stall the last millimetres of the descent.
@@ -358,24 +394,30 @@ def _descent_goal(s: SceneState, name: str, body: Body, point: np.ndarray, yaw: 
     err = point[:2] - s.eef_pos[:2]
     axis = np.array([np.cos(yaw), np.sin(yaw)])
     along, across = abs(err @ axis), abs(err @ np.array([-axis[1], axis[0]]))
-    if along < _along_tolerance(name, body, yaw) and across < XY_TOL:
+    if along < _along_tolerance(name, body, yaw, point[2]) and across < XY_TOL:
         return point
     return np.array([*point[:2], max(point[2], body.hi[2] + FINGERTIP_BELOW + 0.01)])
 
 
-def _along_tolerance(name: str, body: Body, yaw: float) -> float:
+def _along_tolerance(name: str, body: Body, yaw: float, z: float | None = None) -> float:
     """How far off-centre along the finger axis the fingers may pass the object's top."""
     if _is_rim(name):
         return 0.012  # one finger goes inside the cup: centimetres of room
-    return float(np.clip(0.6 * (PAD_GAP - _grip_width(name, body, yaw)) / 2, 0.003, XY_TOL))
+    return float(np.clip(0.6 * (PAD_GAP - _grip_width(name, body, yaw, z)) / 2, 0.003, XY_TOL))
 
 
-def _grip_width(name: str, body: Body, yaw: float) -> float:
-    """The object's width between the pads when grasped across at finger yaw ``yaw``."""
+def _grip_width(name: str, body: Body, yaw: float, z: float | None = None) -> float:
+    """The object's width between the pads when grasped across at finger yaw ``yaw`` (with the
+    eef site at height ``z``: where the pads close, e.g. on a bottle's narrow cap)."""
     ext = body.local_hi - body.local_lo
     if _is_round(name):
         return float(min(ext))  # the can's diameter
-    return float(ext[0] if abs(_wrap(yaw - body.yaw)) < np.pi / 4 else ext[1])
+    if z is not None:
+        width = _slice_width(body, yaw, z)
+        if width is not None:
+            return width
+    yaw0, hext = _horizontal_frame(body)
+    return float(hext[0] if abs(_wrap(yaw - yaw0)) < np.pi / 4 else hext[1])
 
 
 def _lift(s: SceneState, body: Body) -> Step:
@@ -418,6 +460,10 @@ def slot_point(s: SceneState, obj: str, target: str, slot: tuple[int, int]) -> n
     half = (np.abs(site.xmat) @ site.size)[:2]
     axis = _slot_axis(s, target)
     usable = max(half[axis] - SLOT_MARGIN, 0.0)
+    if target.endswith("contain_region"):
+        # Inside a container the whole object must clear the walls, not just its origin:
+        # lowered against a wall, a carton catches on the rim.
+        usable = max(half[axis] - float(_footprint(s.bodies[obj])[0]) / 2, 0.0)
     step = np.linspace(usable, -usable, n)[i]  # +x is away from the robot's base
     xy = site.pos[:2].copy()
     xy[axis] += step
@@ -460,6 +506,8 @@ def place(s: SceneState, obj: str, target: str, knobs: Knobs, slot: tuple[int, i
     # origin (On: within 3 cm of the support's origin), and a rim-held mug hangs several
     # centimetres off the hand.
     below = s.eef_pos[2] - body.lo[2]  # how far the object hangs below the gripper centre
+    if is_tall(body) and target.endswith("contain_region") and _holder(s, target) is not None:
+        bottom = min(bottom, _lowered_bottom(s, target, below))
     release_z = bottom + below + knobs.release_early
     goal, yaw = _release_pose(s, obj, target, xy[:2], release_z,
                               yaws=None if slot is None else (_slot_yaw(s, obj, target),))
@@ -493,6 +541,28 @@ def place(s: SceneState, obj: str, target: str, knobs: Knobs, slot: tuple[int, i
     return Step(hold(OPEN))
 
 
+TALL = 1.6  # an object is tall if its longest side is this many times its second longest
+THICK = 0.025  # ... and its shortest side at least this (a box of butter is long but flat)
+
+
+def is_tall(body: Body) -> bool:
+    """A bottle or a carton (longest side well over the others), whichever way it lies."""
+    ext = np.sort(body.local_hi - body.local_lo)[::-1]
+    return bool(ext[0] >= TALL * ext[1] and ext[2] >= THICK)
+
+
+def _lowered_bottom(s: SceneState, target: str, below: float) -> float:
+    """How low a tall object's bottom may be lowered into a container before letting go: down
+    to the floor, or as far as the hand (over its top) stays above the container's rim.
+
+    Dropped from the rim, a carton falls its own height and topples, across the basket,
+    where the next object then has no room."""
+    site = s.sites[target]
+    floor = site.pos[2] - float((np.abs(site.xmat) @ site.size)[2])
+    rim = float(s.bodies[_holder(s, target)].hi[2])
+    return max(floor + 0.01, rim + 0.005 - HAND_ABOVE - below)
+
+
 def _holder(s: SceneState, target: str) -> str | None:
     """The fixture or object a region belongs to (a cabinet, a basket), None for a table region."""
     owner = max((n for n in s.bodies if target.startswith(n + "_")), key=len, default=None)
@@ -501,7 +571,7 @@ def _holder(s: SceneState, target: str) -> str | None:
 
 def _footprint(body: Body) -> np.ndarray:
     """World-frame (x, y) extent of an upright object, whatever its yaw: its widest horizontal side."""
-    return np.full(2, float(np.max(body.local_hi[:2] - body.local_lo[:2])))
+    return np.full(2, float(np.max(_horizontal_frame(body)[1])))
 
 
 def let_go_and_rise(s: SceneState, body: Body) -> Step:
