@@ -54,6 +54,10 @@ WALL = 0.005  # half a cup wall: where the fingers centre on the rim
 SLOT_MARGIN = 0.015  # a shared region's outermost origins stay this far inside it
 SLOT_TOL = 0.008  # release tolerance (each of x, y) when placing into a slot of a shared region
 HANDLE_BAR = 0.01  # thickness of a mug handle's outer bar (radially), ~9 mm measured
+DRAWER_WALL_CLEARANCE = 0.008  # the hand's underside this far above a drawer's walls when letting go
+SLIDE_CLEARANCE = 0.01  # fingertips this far above an object's top while sliding over it under an overhang
+SLIDE_MARGIN = 0.015  # ... having come down this far clear of the overhang
+HAND_TOP = 0.12  # the hand's top above the eef site
 HANDLE_GRASP_HEIGHT = 0.62  # pinch a handle this far up the mug (fraction of its height): its upper bar
 
 
@@ -250,13 +254,13 @@ def _box_candidates(s: SceneState, body: Body) -> list[tuple[np.ndarray, float, 
     return out
 
 
-def _intrusion(s: SceneState, point: np.ndarray, yaw: float, own: str) -> float:
+def _intrusion(s: SceneState, point: np.ndarray, yaw: float, own: str, skip: tuple = ()) -> float:
     """How much other objects' boxes overlap the open hand at ``point`` (a penalty, ~m^2 x 1e3)."""
     axis = np.array([np.cos(yaw), np.sin(yaw)])
     perp = np.array([-axis[1], axis[0]])
     total = 0.0
     for n, b in s.bodies.items():
-        if n == own or b.lo[2] > point[2] + 0.13:
+        if n == own or n in skip or b.lo[2] > point[2] + 0.13:
             continue
         corners = np.array([[x, y] for x in (b.lo[0], b.hi[0]) for y in (b.lo[1], b.hi[1])]) - point[:2]
         along, across = corners @ axis, corners @ perp
@@ -306,6 +310,12 @@ def _rim_candidates(s: SceneState, name: str, body: Body) -> list[tuple[np.ndarr
 def pick(s: SceneState, name: str, knobs: Knobs, by_handle: bool = False) -> Step:
     body = s.bodies[name]
     if s.facts.get(f"Grasped({name})", False):
+        if body.lo[2] < s.table_z + 0.04:
+            # Held under an overhang (grasped after `_slide_under`): back out from under it
+            # first, just off the table, then lift.
+            out = _overhang_entry(s, name, body, s.eef_pos, _finger_yaw(s))
+            if out is not None:
+                return Step(move(s.eef_pos, np.array([*out[:2], s.eef_pos[2]]) + [0, 0, 0.005], CLOSE))
         return _lift(s, body)
     by_handle = by_handle and handle(name, body) is not None
     point, yaw = grasp_pose(s, name, knobs, by_handle)
@@ -334,6 +344,11 @@ def pick(s: SceneState, name: str, knobs: Knobs, by_handle: bool = False) -> Ste
         if xy_err < 2 * XY_TOL and abs(err[2]) < 2 * Z_TOL and s.gripper_width > empty:
             return Step(move(s.eef_pos, point, CLOSE))
         return Step(move(s.eef_pos, s.eef_pos + [0, 0, 0.01], OPEN))
+    entry = _overhang_entry(s, name, body, point, yaw)
+    if entry is not None:
+        step = _slide_under(s, name, body, point, entry, yaw_err)
+        if step is not None:
+            return step
     # Hover above the grasp, high enough that the fingertips pass over whatever lies between.
     over = _path_top(s, s.eef_pos[:2], point[:2], name, FINGER_SPAN[1]) + FINGERTIP_BELOW + 0.02
     hover = np.array([point[0], point[1], max(point[2] + HOVER, body.hi[2] + 0.05, over)])
@@ -344,6 +359,65 @@ def pick(s: SceneState, name: str, knobs: Knobs, by_handle: bool = False) -> Ste
         return Step(move(s.eef_pos, _descent_goal(s, name, body, point, yaw), OPEN, yaw_err))
     # Not lined up: line up at hover height (rising first if low, to clear the object).
     if s.eef_pos[2] < hover[2] - 0.03 and xy_err > 0.03:
+        return Step(move(s.eef_pos, np.array([*s.eef_pos[:2], hover[2]]), OPEN, yaw_err))
+    return Step(move(s.eef_pos, hover, OPEN, yaw_err))
+
+
+def _overhang_entry(s: SceneState, name: str, body: Body, point: np.ndarray, yaw: float) -> np.ndarray | None:
+    """Where to come down beside the grasp when something hangs over it (an open drawer).
+
+    The hand is 21 cm long: grasping an object just in front of an open drawer, the hand's
+    end would sit under the drawer, but coming straight down it hits the drawer on the way.
+    So the hand comes down where its footprint is clear of the overhanging part, with the
+    fingertips just above the object's top, and slides in over the object (under the part).
+    Returns that point (eef, at the sliding height), or None if nothing overhangs.
+    Overhangs are the moving parts of articulated fixtures whose underside is above the
+    object; a fixed body's box says nothing about what is under it."""
+    axis = np.array([np.cos(yaw), np.sin(yaw)])
+    perp = np.array([-axis[1], axis[0]])
+    slide_z = body.hi[2] + FINGERTIP_BELOW + SLIDE_CLEARANCE
+    best, best_cost = None, np.inf
+    for a in s.articulations.values():
+        part = a.part
+        if not slide_z + 0.05 < part.lo[2] < slide_z + HOVER + HAND_TOP:
+            continue
+        corners = np.array([[x, y] for x in (part.lo[0], part.hi[0]) for y in (part.lo[1], part.hi[1])]) - point[:2]
+        along, across = corners @ axis, corners @ perp
+        if _overlap(along, -HAND_HALF[0], HAND_HALF[0]) <= 0 or _overlap(across, -HAND_HALF[1], HAND_HALF[1]) <= 0:
+            continue
+        # Shortest slides (along or across the finger axis, either way) that clear the part.
+        for direction, coords, half in ((axis, along, HAND_HALF[0]), (perp, across, HAND_HALF[1])):
+            for sign in (1.0, -1.0):
+                # Moving the hand by -sign * direction * d leaves the part all beyond its end.
+                d = half - float(np.min(sign * coords)) + SLIDE_MARGIN
+                xy = point[:2] - sign * direction * d
+                cost = d + _intrusion(s, np.array([*xy, slide_z]), yaw, name)
+                if cost < best_cost:
+                    best, best_cost = np.array([*xy, slide_z]), cost
+    return best
+
+
+def _slide_under(s: SceneState, name: str, body: Body, point: np.ndarray, entry: np.ndarray,
+                 yaw_err: float) -> Step | None:
+    """Reach a grasp under an overhang: down at ``entry``, then across at the sliding height
+    to above the grasp point, where the normal descent takes over (None: let it)."""
+    xy_err = float(np.linalg.norm(point[:2] - s.eef_pos[:2]))
+    if xy_err < 0.015 and s.eef_pos[2] < entry[2] + 0.015:
+        return None  # over the object, under the overhang: straight down onto the grasp
+    span = entry[:2] - point[:2]
+    length = float(np.linalg.norm(span))
+    u = span / (length + 1e-12)
+    rel = s.eef_pos[:2] - point[:2]
+    t, off = float(rel @ u), float(abs(rel @ np.array([-u[1], u[0]])))
+    level = abs(s.eef_pos[2] - entry[2]) < 0.015
+    if level and off < 0.012 and -0.01 < t < length + 0.012 and abs(yaw_err) < YAW_TOL:
+        return Step(move(s.eef_pos, np.array([*point[:2], entry[2]]), OPEN, yaw_err))  # slide in
+    at_entry = float(np.linalg.norm(entry[:2] - s.eef_pos[:2]))
+    if at_entry < 0.015 and abs(yaw_err) < YAW_TOL and s.eef_pos[2] > entry[2] - 0.015:
+        return Step(move(s.eef_pos, entry, OPEN, yaw_err))  # down beside it
+    over = _path_top(s, s.eef_pos[:2], entry[:2], name, FINGER_SPAN[1]) + FINGERTIP_BELOW + 0.02
+    hover = np.array([entry[0], entry[1], max(entry[2] + HOVER, over)])
+    if s.eef_pos[2] < hover[2] - 0.03 and at_entry > 0.03:
         return Step(move(s.eef_pos, np.array([*s.eef_pos[:2], hover[2]]), OPEN, yaw_err))
     return Step(move(s.eef_pos, hover, OPEN, yaw_err))
 
@@ -461,6 +535,11 @@ def place(s: SceneState, obj: str, target: str, knobs: Knobs, slot: tuple[int, i
     # centimetres off the hand.
     below = s.eef_pos[2] - body.lo[2]  # how far the object hangs below the gripper centre
     release_z = bottom + below + knobs.release_early
+    drawer = _drawer_joint(s, target)
+    if drawer is not None:
+        # The hand (21 cm long) does not fit between a drawer's walls: let go with its
+        # underside just above them (a drop of a centimetre or two).
+        release_z = max(release_z, drawer.part.hi[2] - HAND_ABOVE + DRAWER_WALL_CLEARANCE)
     goal, yaw = _release_pose(s, obj, target, xy[:2], release_z,
                               yaws=None if slot is None else (_slot_yaw(s, obj, target),))
     off = goal - body.pos[:2]
@@ -545,6 +624,8 @@ def _release_pose(s: SceneState, obj: str, target: str, xy: np.ndarray, release_
     body = s.bodies[obj]
     now = _finger_yaw(s)
     hang = body.pos[:2] - s.eef_pos[:2]  # the object's origin relative to the hand
+    if yaws is None and _drawer_joint(s, target) is not None:
+        return _drawer_release_pose(s, obj, target, xy, release_z)
     spots = [(xy, 0.0)]
     if yaws is None and target in s.sites and not target.endswith("contain_region"):
         site = s.sites[target]
@@ -566,6 +647,66 @@ def _release_pose(s: SceneState, obj: str, target: str, xy: np.ndarray, release_
             if total < best_cost:
                 best, best_cost = (spot, yaw), total
     return best
+
+
+def _drawer_joint(s: SceneState, target: str):
+    """The slide joint of a drawer region (a cabinet's top/middle/bottom region), else None."""
+    joints = [s.articulations[n] for n in s.joints_of.get(target, ()) if n in s.articulations]
+    return next((a for a in joints if a.kind == "slide"), None)
+
+
+def _drawer_release_pose(s: SceneState, obj: str, target: str, xy: np.ndarray,
+                         release_z: float) -> tuple[np.ndarray, float]:
+    """Where to let go over an open drawer, and the finger yaw: the object well inside the
+    region, the hand (above the walls) clear of the cabinet's body that the drawer came out of.
+
+    The hand's footprint is 21 x 8 cm and the cabinet's front face is only a few centimetres
+    behind the region's centre, so the generic rule (least overlap with any box) is misled by
+    the cabinet's box, which also contains the open drawer, and picks a spot by a wall (where
+    the fingers land on it). Here the cabinet counts only up to the closed drawer's front."""
+    body = s.bodies[obj]
+    a = _drawer_joint(s, target)
+    owner = _holder(s, target)
+    now = _finger_yaw(s)
+    hang = body.pos[:2] - s.eef_pos[:2]
+    site = s.sites[target]
+    half = np.maximum((np.abs(site.xmat) @ site.size)[:2] - _footprint(body) / 2 - 0.01, 0.0)
+    # The cabinet's body: its box, cut at the drawer's front when closed (along the pull).
+    pull = a.axis[:2] * (1.0 if abs(a.range[1]) >= abs(a.range[0]) else -1.0)
+    pull = pull / (np.linalg.norm(pull) + 1e-12)
+    opened = abs(a.qpos)
+    front = max(float(c @ pull) for c in _box_corners2(a.part)) - opened
+    cab = s.bodies[owner] if owner in s.bodies else None
+    grid = np.array([[u, v] for u in np.linspace(-HAND_HALF[0], HAND_HALF[0], 9)
+                     for v in np.linspace(-HAND_HALF[1], HAND_HALF[1], 5)])
+    spots = [xy + np.array([fx, fy]) * half for fx in (-1.0, 0.0, 1.0) for fy in (-1.0, 0.0, 1.0)]
+    best, best_cost = (xy, now), np.inf
+    for yaw in (now, 0.0, np.pi / 2, np.pi / 4, -np.pi / 4):
+        turn = _yaw_error(s, yaw)
+        c, si = np.cos(turn), np.sin(turn)
+        turned = np.array([c * hang[0] - si * hang[1], si * hang[0] + c * hang[1]])
+        axis = np.array([np.cos(yaw), np.sin(yaw)])
+        frame = np.stack([axis, [-axis[1], axis[0]]])  # rows: along, across the finger axis
+        for spot in spots:
+            eef = spot - turned
+            cost = TURN_COST * abs(turn) + 0.3 * float(np.linalg.norm(spot - xy))
+            if cost >= best_cost:
+                continue
+            if cab is not None:
+                # The hand's footprint against the cabinet's body (behind the closed front).
+                pts = eef + grid @ frame
+                inside = (pts @ pull < front) & np.all((pts >= cab.lo[:2]) & (pts <= cab.hi[:2]), axis=1)
+                cost += 50.0 * float(np.sum(front - pts[inside] @ pull))
+            if cost < best_cost:
+                cost += _intrusion(s, np.array([*eef, release_z]), yaw, obj, skip=(owner,))
+            if cost < best_cost:
+                best, best_cost = (spot, yaw), cost
+    return best
+
+
+def _box_corners2(box) -> np.ndarray:
+    """(x, y) corners of a box's world AABB."""
+    return np.array([[x, y] for x in (box.lo[0], box.hi[0]) for y in (box.lo[1], box.hi[1])])
 
 
 def _path_top(s: SceneState, start: np.ndarray, end: np.ndarray, own: str, reach: float) -> float:
