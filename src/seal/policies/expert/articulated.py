@@ -60,6 +60,9 @@ LEVEL_YAW = 0.5  # the level gripper points this far off straight-in, away from 
 GRIP_OUT = 0.006  # eef this far out from the bar's centre to pinch it: pads on it, tips short of the face
 LEVEL_CLEARANCE = 0.12  # height to rise to, level, before pointing down again (the hand swings)
 OPEN_TO = 0.155  # how far to pull a drawer (LIBERO: open beyond 0.14 of its 0.16 travel)
+SWEEP_CHECK_UNTIL = 0.02  # a drawer opened further than this has already swept over what is in front
+SWEEP_MARGIN = 0.015  # push what is in a drawer's sweep this far clear of its open front
+PUSH_SLACK = 0.04  # how far past the contact the push window reaches (a chunk's extrapolation)
 LEVEL_MIN_HEIGHT = 0.09  # handle height above the table the level pinch needs (the hand reaches 10 cm below)
 FINGERTIP_BELOW = 0.013  # the closed fingertips reach this far past the eef site along the pointing axis
 DRAG_OUT = 0.002  # fingertips this far out from the bar's centre line when dragging a low drawer
@@ -471,6 +474,57 @@ def _drag_drawer(s: SceneState, obj: str, goal: GoalAtom, a: Articulation, g: _D
         return Step(_act(s, over, CLOSE, g.side, lean, cap=DRAG_SPEED))  # in over the bar, slowly
     ready = over + g.pull * 0.06
     return Step(_approach(s, ready, CLOSE, g.side, lean, a, g.bar_top, _owner(s, obj)))
+
+
+def _aabb(b) -> Box:
+    """A body's world-aligned bounding box as a `Box`."""
+    return Box(center=(b.lo + b.hi) / 2, xmat=np.eye(3), half=(b.hi - b.lo) / 2)
+
+
+def in_sweep(s: SceneState, region: str, movers: tuple[str, ...]) -> str | None:
+    """Of the objects to be picked later, one that would end up under the drawer once it is
+    open (in the open drawer's footprint, lower than its bottom), where no grasp reaches it:
+    the hand is 12 cm tall and would have to come down through the drawer."""
+    joints = [s.articulations[n] for n in s.joints_of.get(region, ())]
+    a = next((j for j in joints if j.kind == "slide"), None)
+    if a is None or _openness(a) > SWEEP_CHECK_UNTIL:
+        return None
+    g = _drawer(a)
+    swept_to = _extent(_aabb(a.part), g.pull) + OPEN_TO - _openness(a)  # the drawer's front, once open
+    for name in movers:
+        b = s.bodies.get(name)
+        if b is None or b.hi[2] > a.part.lo[2]:
+            continue
+        across = (b.center - g.handle) @ g.side
+        half_side = _extent(_aabb(a.part), g.side) - float(g.handle @ g.side)
+        if abs(across) > half_side + float(np.abs(b.hi - b.lo)[:2] @ np.abs(g.side[:2])) / 2:
+            continue
+        if -_extent(_aabb(b), -g.pull) < swept_to:
+            return name  # its back edge is inside the sweep
+    return None
+
+
+def push_clear(s: SceneState, region: str, name: str) -> Step:
+    """Push ``name`` out of the drawer's sweep, along the pull, before opening it: closed
+    fingers low against its back (the side facing the cabinet), the hand above its rim."""
+    a = _joint(s, region, want_open=True)
+    g = _drawer(a)
+    b = s.bodies[name]
+    swept_to = _extent(_aabb(a.part), g.pull) + OPEN_TO - _openness(a)
+    back = -_extent(_aabb(b), -g.pull)  # its edge nearest the cabinet, along the pull
+    need = swept_to + SWEEP_MARGIN - back
+    lateral = float((b.center - g.handle) @ g.side)
+    z = max(b.lo[2] + 0.35 * b.size[2], s.table_z + FINGERTIP_BELOW + 0.004)
+    contact = np.array([*(g.handle[:2] + g.side[:2] * lateral), z])
+    contact = contact + g.pull * (back - FINGER_HALF - float(contact @ g.pull))  # fingers touching its back
+    rel = s.eef_pos - contact
+    ahead, side = float(rel @ g.pull), float(rel @ g.side)
+    if abs(side) < 0.02 and abs(rel[2]) < 0.015 and -0.02 < ahead < 0.03 + PUSH_SLACK:
+        target = s.eef_pos + g.pull * (need + 0.005)
+        target[2] = z
+        return Step(_act(s, target, CLOSE, g.side, cap=PUSH_SPEED))
+    ready = contact - g.pull * 0.015
+    return Step(_approach(s, ready, CLOSE, g.side, DOWN, a, b.hi[2], _owner(s, region)))
 
 
 # ---- doors -------------------------------------------------------------------------------

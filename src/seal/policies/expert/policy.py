@@ -187,8 +187,14 @@ class ScriptedExpert:
             if stow.stowing(s, sub.obj, attempt.target) is not None:
                 return stow.place_inside(s, sub.obj, attempt.target, attempt.knobs)
             return skills.place(s, sub.obj, attempt.target, attempt.knobs, slot=self._slot(sub, attempt))
-        from seal.policies.expert.articulated import ARTICULATED_SKILLS
+        from seal.policies.expert.articulated import ARTICULATED_SKILLS, in_sweep, push_clear
 
+        if sub.skill == "open":
+            # Something to pick later lies where the drawer will be: out of the way first.
+            later = tuple(p.obj for p in (self._plans or []) if p.skill == "pick")
+            blocker = in_sweep(s, sub.obj, later)
+            if blocker is not None:
+                return push_clear(s, sub.obj, blocker)
         fn = ARTICULATED_SKILLS.get(sub.skill)
         if fn is None:
             raise InvalidInput(f"no motion primitive for skill {sub.skill!r} ({sub.text!r}) in task {self.task}")

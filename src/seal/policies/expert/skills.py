@@ -55,6 +55,7 @@ SLOT_MARGIN = 0.015  # a shared region's outermost origins stay this far inside 
 SLOT_TOL = 0.008  # release tolerance (each of x, y) when placing into a slot of a shared region
 HANDLE_BAR = 0.01  # thickness of a mug handle's outer bar (radially), ~9 mm measured
 DRAWER_WALL_CLEARANCE = 0.008  # the hand's underside this far above a drawer's walls when letting go
+HAND_UNDERSIDE = 0.031  # the hand's underside above the eef site (its collision mesh; HAND_ABOVE has margin)
 SLIDE_CLEARANCE = 0.01  # fingertips this far above an object's top while sliding over it under an overhang
 SLIDE_MARGIN = 0.015  # ... having come down this far clear of the overhang
 HAND_TOP = 0.12  # the hand's top above the eef site
@@ -677,6 +678,8 @@ def _drawer_release_pose(s: SceneState, obj: str, target: str, xy: np.ndarray,
     opened = abs(a.qpos)
     front = max(float(c @ pull) for c in _box_corners2(a.part)) - opened
     cab = s.bodies[owner] if owner in s.bodies else None
+    if cab is not None and release_z + HAND_UNDERSIDE > cab.hi[2] + 0.005:
+        cab = None  # the hand passes over the cabinet's top (the top drawer): nothing to avoid
     grid = np.array([[u, v] for u in np.linspace(-HAND_HALF[0], HAND_HALF[0], 9)
                      for v in np.linspace(-HAND_HALF[1], HAND_HALF[1], 5)])
     spots = [xy + np.array([fx, fy]) * half for fx in (-1.0, 0.0, 1.0) for fy in (-1.0, 0.0, 1.0)]
