@@ -50,6 +50,7 @@ ROUND = ("alphabet_soup", "tomato_sauce")
 # Offset (local frame, metres) from the box centre to the cup axis, measured from the
 # collision geoms. Unknown mugs fall back to the box centre (the rim grasp tolerates ~2 cm).
 CUP_OFFSET = {"porcelain_mug": (0.02, 0.0), "white_yellow_mug": (-0.017, 0.0)}
+RIM_NEAR = 0.03  # a hand this close to a bowl's rim (horizontally) pinches it along its current finger axis
 WALL = 0.005  # half a cup wall: where the fingers centre on the rim
 SLOT_MARGIN = 0.015  # a shared region's outermost origins stay this far inside it
 SLOT_TOL = 0.008  # release tolerance (each of x, y) when placing into a slot of a shared region
@@ -292,10 +293,12 @@ def _rim_candidates(s: SceneState, name: str, body: Body) -> list[tuple[np.ndarr
         radial = ey if ext[0] > ext[1] else ex  # perpendicular to the handle axis
     else:
         radial = s.eef_pos[:2] - cup
-        if np.linalg.norm(radial) < min(ext) / 4:  # well inside the rim (a grasp point sits on it)
+        if np.linalg.norm(radial) < min(ext) / 2 + RIM_NEAR:  # over the bowl or its rim
             # The hand is over the bowl: the direction to it is ill-defined and swings with
             # every centimetre the hand moves (the target yaw then flips between half-turn
-            # twins within one chunk and the wrist stalls). Pinch along the current finger axis.
+            # twins within one chunk and the wrist stalls; hovering over a rim point, each
+            # turn of the wrist shifts the hand and so the point). Pinch along the current
+            # finger axis.
             radial = s.finger_axis[:2].copy()
         radial = radial / (np.linalg.norm(radial) + 1e-9)
     radius = min(ext) / 2
