@@ -50,6 +50,9 @@ ROUND = ("alphabet_soup", "tomato_sauce")
 # Offset (local frame, metres) from the box centre to the cup axis, measured from the
 # collision geoms. Unknown mugs fall back to the box centre (the rim grasp tolerates ~2 cm).
 CUP_OFFSET = {"porcelain_mug": (0.02, 0.0), "white_yellow_mug": (-0.017, 0.0)}
+RIM_TURN_COST = 0.3  # per radian of wrist turn to pinch a bowl from a fixed direction instead
+REACH_COST = 100.0  # per metre a pinch point lies beyond FAR_X (away from the robot)
+FAR_X = 0.10  # beyond this (table frame) the arm reaching down to the table is nearly straight
 RIM_NEAR = 0.03  # a hand this close to a bowl's rim (horizontally) pinches it along its current finger axis
 WALL = 0.005  # half a cup wall: where the fingers centre on the rim
 SLOT_MARGIN = 0.015  # a shared region's outermost origins stay this far inside it
@@ -303,11 +306,25 @@ def _rim_candidates(s: SceneState, name: str, body: Body) -> list[tuple[np.ndarr
         radial = radial / (np.linalg.norm(radial) + 1e-9)
     radius = min(ext) / 2
     z = max(body.hi[2] - min(0.02, 0.5 * body.size[2]), _min_grasp_z(s))
+    sides = [radial, -radial]
+    round_bowl = abs(ext[0] - ext[1]) <= 0.15 * min(ext)
+    if round_bowl:
+        # A round bowl can be pinched anywhere on its rim: also from fixed directions (fixed,
+        # so the target does not turn with the wrist), for when a neighbour crowds the hand
+        # on both sides along the current axis.
+        sides += [np.array([np.cos(k * np.pi / 4), np.sin(k * np.pi / 4)]) for k in range(8)]
     out = []
-    for side in (radial, -radial):
+    for i, side in enumerate(sides):
         xy = cup + side * (radius - WALL)
+        yaw = float(np.arctan2(side[1], side[0]))
         near = 0.01 * np.linalg.norm(xy - s.eef_pos[:2])  # tie-break: the nearer side
-        out.append((np.array([*xy, z]), float(np.arctan2(side[1], side[0])), near))
+        if i >= 2:
+            near += RIM_TURN_COST * abs(_yaw_error(s, yaw))  # a wrist turn, only if it helps
+        if round_bowl:
+            # Far out from the robot (it stands at -x) the arm is nearly straight: its elbow
+            # locks and it cannot lift what it holds.
+            near += REACH_COST * max(0.0, float(xy[0]) - FAR_X)
+        out.append((np.array([*xy, z]), yaw, near))
     return out
 
 
