@@ -523,8 +523,13 @@ def push_clear(s: SceneState, region: str, name: str) -> Step:
         target = s.eef_pos + g.pull * (need + 0.005)
         target[2] = z
         return Step(_act(s, target, CLOSE, g.side, cap=PUSH_SPEED))
-    ready = contact - g.pull * 0.015
-    return Step(_approach(s, ready, CLOSE, g.side, DOWN, a, b.hi[2], _owner(s, region)))
+    ready = contact - g.pull * 0.02
+    if np.linalg.norm((ready - s.eef_pos)[:2]) < 0.025 and _misalign(s, g.side) < YAW_TOL:
+        # Over the spot behind it: straight down, correcting sideways drift on the way
+        # (nothing but the object itself is near, and the hand stays behind its rim).
+        return Step(_act(s, ready, CLOSE, g.side))
+    hover = np.array([*ready[:2], b.hi[2] + 0.05])
+    return Step(_approach(s, hover, CLOSE, g.side, DOWN, a, b.hi[2], _owner(s, region)))
 
 
 # ---- doors -------------------------------------------------------------------------------
