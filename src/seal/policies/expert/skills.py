@@ -696,7 +696,7 @@ def _drawer_release_pose(s: SceneState, obj: str, target: str, xy: np.ndarray,
     pull = a.axis[:2] * (1.0 if abs(a.range[1]) >= abs(a.range[0]) else -1.0)
     pull = pull / (np.linalg.norm(pull) + 1e-12)
     opened = abs(a.qpos)
-    front = max(float(c @ pull) for c in _box_corners2(a.part)) - opened
+    front = max(float(c @ pull) for c in _xy_corners(a.part)) - opened
     cab = s.bodies[owner] if owner in s.bodies else None
     if cab is not None and release_z + HAND_UNDERSIDE > cab.hi[2] + 0.005:
         cab = None  # the hand passes over the cabinet's top (the top drawer): nothing to avoid
@@ -727,7 +727,7 @@ def _drawer_release_pose(s: SceneState, obj: str, target: str, xy: np.ndarray,
     return best
 
 
-def _box_corners2(box) -> np.ndarray:
+def _xy_corners(box) -> np.ndarray:
     """(x, y) corners of a box's world AABB."""
     return np.array([[x, y] for x in (box.lo[0], box.hi[0]) for y in (box.lo[1], box.hi[1])])
 
