@@ -13,7 +13,8 @@ collision boxes), never from per-task constants:
 * drawer (slide joint): the handle is the part's geometry sticking out furthest along the
   pull direction. Close: closed fingers push the handle in, leaning toward the cabinet so
   the forearm stays off the cabinet's top. Open: with the gripper level (pointing into the
-  cabinet), pinch the bar from above and below and pull; top and middle drawers only.
+  cabinet), pinch the bar from above and below and pull (top and middle drawers); a bottom
+  drawer's bar is too near the table for that: press the fingertips on it and drag it out.
 * door (hinge joint, microwave_1): the handle is the part's geometry furthest from the hinge.
   Close: closed fingers push the outer face along its arc, high up so the wide hand passes
   over the door's top edge. Open: pinch the handle's top and pull it round as far as the arm
@@ -59,6 +60,17 @@ LEVEL_YAW = 0.5  # the level gripper points this far off straight-in, away from 
 GRIP_OUT = 0.006  # eef this far out from the bar's centre to pinch it: pads on it, tips short of the face
 LEVEL_CLEARANCE = 0.12  # height to rise to, level, before pointing down again (the hand swings)
 OPEN_TO = 0.155  # how far to pull a drawer (LIBERO: open beyond 0.14 of its 0.16 travel)
+SWEEP_CHECK_UNTIL = 0.02  # a drawer opened further than this has already swept over what is in front
+SWEEP_MARGIN = 0.015  # push what is in a drawer's sweep this far clear of its open front
+PUSH_SLACK = 0.04  # how far past the contact the push window reaches (a chunk's extrapolation)
+LEVEL_MIN_HEIGHT = 0.09  # handle height above the table the level pinch needs (the hand reaches 10 cm below)
+FINGERTIP_BELOW = 0.013  # the closed fingertips reach this far past the eef site along the pointing axis
+DRAG_OUT = 0.002  # fingertips this far out from the bar's centre line when dragging a low drawer
+DRAG_PRESS = 0.02  # ... pressing down toward a point this far below the bar's top
+DRAG_SPEED = 0.35  # action cap while dragging: the friction has to beat the drawer's damping
+DRAG_TILT = 0.8  # radians the fingers lean into the cabinet: the hand's back edge clears the handle above
+DRAG_OVER = 0.02  # ... coming in over the bar this far above its top
+DRAG_SLACK = 0.04  # how far ahead of the bar the drag window reaches (a chunk's extrapolated motion)
 
 # Doors.
 DOOR_LEAD = 0.25  # radians the push (or pull) target runs ahead of the door along its arc
@@ -379,9 +391,12 @@ def open_drawer(s: SceneState, obj: str, goal: GoalAtom) -> Step:
     With the gripper pointing down the bar cannot be held: the slot behind it is narrower
     than a finger, and straddling it along the pull would put the hand (20 cm along the
     finger axis) into the cabinet's face. Level, the hand reaches 10 cm above and below the
-    bar, so this needs the handle that high above the table (top and middle drawers)."""
+    bar, so this needs the handle that high above the table (top and middle drawers); a
+    lower one (the bottom drawer) is dragged out by friction instead (`_drag_drawer`)."""
     a = _joint(s, obj, want_open=True)
     g = _drawer(a)
+    if g.handle[2] - s.table_z < LEVEL_MIN_HEIGHT:
+        return _drag_drawer(s, obj, goal, a, g)
     rel = s.eef_pos - g.handle
     ahead, lateral, dz = rel @ g.pull, rel @ g.side, rel[2]
     point_in = _unit(-g.pull * np.cos(LEVEL_YAW) + AWAY * np.sin(LEVEL_YAW))
@@ -422,6 +437,99 @@ def open_drawer(s: SceneState, obj: str, goal: GoalAtom) -> Step:
         return Step(_act_pose(s, grip, OPEN, UP, point_in, cap=PUSH_SPEED))  # straight in
     # Anywhere else: to a point level with the bar, out in front of it, turning level.
     return Step(_act_pose(s, g.handle + g.pull * (GRIP_OUT + 0.1), OPEN, UP, point_in))
+
+
+def _drag_drawer(s: SceneState, obj: str, goal: GoalAtom, a: Articulation, g: _Drawer) -> Step:
+    """Open a drawer whose handle is too low for the level pinch (the bottom drawer): press
+    the closed fingertips down on top of the handle bar and drag it out by friction.
+
+    The bar cannot be held at all down there: level, the hand (21 cm along the finger axis)
+    would reach through the table; pointing down, the slot between the bar and the drawer
+    front (1.6 cm) is narrower than a finger. Pressed down, though, the fingertips' friction
+    on the bar (mu ~1) is well above the drawer's damping at a moderate pull. The fingers
+    lean toward the cabinet, like `close_drawer`, so the hand's back edge stays out of the
+    face of the drawer above; the finger axis lies along the bar."""
+    lean = _unit(DOWN * np.cos(DRAG_TILT) - g.pull * np.sin(DRAG_TILT))
+    # The eef where the fingertips (FINGERTIP_BELOW along the pointing direction) rest on the
+    # bar's top, a little out from its middle (the hand's back edge clears the face above).
+    tip = np.array([*(g.handle + g.pull * DRAG_OUT)[:2], g.bar_top])
+    contact = tip - lean * FINGERTIP_BELOW
+    rel = s.eef_pos - contact
+    ahead, lateral, dz = rel @ g.pull, rel @ g.side, rel[2]
+    if s.facts.get(str(goal), False):
+        return _rise(s, g.bar_top + CLEARANCE + HAND_ABOVE_EEF)
+    if abs(lateral) < 0.02 and -DRAG_PRESS - 0.012 < dz < 0.004 and -0.012 < ahead < 0.012 + DRAG_SLACK:
+        # On the bar, pressing it: drag out, pressing down. The window reaches ahead by what a
+        # chunk moves the gripper: the policy's extrapolation leaves the drawer behind.
+        remaining = max(OPEN_TO - _openness(a), 0.0) + 0.01
+        target = s.eef_pos + g.pull * remaining - g.side * lateral
+        target[2] = contact[2] - DRAG_PRESS  # pressing: the bar stops the fingers, the controller pushes
+        return Step(_act(s, target, CLOSE, g.side, lean, cap=DRAG_SPEED))
+    if abs(lateral) < 0.012 and abs(ahead) < 0.006 and 0.0 <= dz < DRAG_OVER + 0.012:
+        return Step(_act(s, contact + DOWN * DRAG_PRESS, CLOSE, g.side, lean, cap=PUSH_SPEED))  # press onto it
+    # The bar straight below the next drawer's handle: get over it from the front, just above
+    # its top (from above, the fingers would land on the handle of the drawer above).
+    over = contact + UP * DRAG_OVER
+    if abs(lateral) < 0.012 and 0.0 < ahead < 0.09 and -0.012 < s.eef_pos[2] - over[2] < 0.012 and _misalign(s, g.side) < YAW_TOL:
+        return Step(_act(s, over, CLOSE, g.side, lean, cap=DRAG_SPEED))  # in over the bar, slowly
+    ready = over + g.pull * 0.06
+    return Step(_approach(s, ready, CLOSE, g.side, lean, a, g.bar_top, _owner(s, obj)))
+
+
+def _aabb(b) -> Box:
+    """A body's world-aligned bounding box as a `Box`."""
+    return Box(center=(b.lo + b.hi) / 2, xmat=np.eye(3), half=(b.hi - b.lo) / 2)
+
+
+def in_sweep(s: SceneState, region: str, movers: tuple[str, ...]) -> str | None:
+    """Of the objects to be picked later, one that would end up under the drawer once it is
+    open (in the open drawer's footprint, lower than its bottom), where no grasp reaches it:
+    the hand is 12 cm tall and would have to come down through the drawer."""
+    joints = [s.articulations[n] for n in s.joints_of.get(region, ())]
+    a = next((j for j in joints if j.kind == "slide"), None)
+    if a is None or _openness(a) > SWEEP_CHECK_UNTIL:
+        return None
+    g = _drawer(a)
+    swept_to = _extent(_aabb(a.part), g.pull) + OPEN_TO - _openness(a)  # the drawer's front, once open
+    for name in movers:
+        b = s.bodies.get(name)
+        if b is None or b.hi[2] > a.part.lo[2]:
+            continue
+        across = (b.center - g.handle) @ g.side
+        half_side = _extent(_aabb(a.part), g.side) - float(g.handle @ g.side)
+        if abs(across) > half_side + float(np.abs(b.hi - b.lo)[:2] @ np.abs(g.side[:2])) / 2:
+            continue
+        if -_extent(_aabb(b), -g.pull) < swept_to:
+            return name  # its back edge is inside the sweep
+    return None
+
+
+def push_clear(s: SceneState, region: str, name: str) -> Step:
+    """Push ``name`` out of the drawer's sweep, along the pull, before opening it: closed
+    fingers low against its back (the side facing the cabinet), the hand above its rim."""
+    a = _joint(s, region, want_open=True)
+    g = _drawer(a)
+    b = s.bodies[name]
+    swept_to = _extent(_aabb(a.part), g.pull) + OPEN_TO - _openness(a)
+    back = -_extent(_aabb(b), -g.pull)  # its edge nearest the cabinet, along the pull
+    need = swept_to + SWEEP_MARGIN - back
+    lateral = float((b.center - g.handle) @ g.side)
+    z = max(b.lo[2] + 0.35 * b.size[2], s.table_z + FINGERTIP_BELOW + 0.004)
+    contact = np.array([*(g.handle[:2] + g.side[:2] * lateral), z])
+    contact = contact + g.pull * (back - FINGER_HALF - float(contact @ g.pull))  # fingers touching its back
+    rel = s.eef_pos - contact
+    ahead, side = float(rel @ g.pull), float(rel @ g.side)
+    if abs(side) < 0.02 and abs(rel[2]) < 0.015 and -0.02 < ahead < 0.03 + PUSH_SLACK:
+        target = s.eef_pos + g.pull * (need + 0.005)
+        target[2] = z
+        return Step(_act(s, target, CLOSE, g.side, cap=PUSH_SPEED))
+    ready = contact - g.pull * 0.02
+    if np.linalg.norm((ready - s.eef_pos)[:2]) < 0.025 and _misalign(s, g.side) < YAW_TOL:
+        # Over the spot behind it: straight down, correcting sideways drift on the way
+        # (nothing but the object itself is near, and the hand stays behind its rim).
+        return Step(_act(s, ready, CLOSE, g.side))
+    hover = np.array([*ready[:2], b.hi[2] + 0.05])
+    return Step(_approach(s, hover, CLOSE, g.side, DOWN, a, b.hi[2], _owner(s, region)))
 
 
 # ---- doors -------------------------------------------------------------------------------

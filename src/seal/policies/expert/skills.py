@@ -51,10 +51,19 @@ ROUND = ("alphabet_soup", "tomato_sauce")
 # Offset (local frame, metres) from the box centre to the cup axis, measured from the
 # collision geoms. Unknown mugs fall back to the box centre (the rim grasp tolerates ~2 cm).
 CUP_OFFSET = {"porcelain_mug": (0.02, 0.0), "white_yellow_mug": (-0.017, 0.0)}
+RIM_TURN_COST = 0.3  # per radian of wrist turn to pinch a bowl from a fixed direction instead
+REACH_COST = 100.0  # per metre a pinch point lies beyond FAR_X (away from the robot)
+FAR_X = 0.10  # beyond this (table frame) the arm reaching down to the table is nearly straight
+RIM_NEAR = 0.03  # a hand this close to a bowl's rim (horizontally) pinches it along its current finger axis
 WALL = 0.005  # half a cup wall: where the fingers centre on the rim
 SLOT_MARGIN = 0.015  # a shared region's outermost origins stay this far inside it
 SLOT_TOL = 0.008  # release tolerance (each of x, y) when placing into a slot of a shared region
 HANDLE_BAR = 0.01  # thickness of a mug handle's outer bar (radially), ~9 mm measured
+DRAWER_WALL_CLEARANCE = 0.008  # the hand's underside this far above a drawer's walls when letting go
+HAND_UNDERSIDE = 0.031  # the hand's underside above the eef site (its collision mesh; HAND_ABOVE has margin)
+SLIDE_CLEARANCE = 0.01  # fingertips this far above an object's top while sliding over it under an overhang
+SLIDE_MARGIN = 0.015  # ... having come down this far clear of the overhang
+HAND_TOP = 0.12  # the hand's top above the eef site
 HANDLE_GRASP_HEIGHT = 0.62  # pinch a handle this far up the mug (fraction of its height): its upper bar
 
 
@@ -286,13 +295,13 @@ def _slice_width(body: Body, yaw: float, z: float) -> float | None:
     return None if hi < lo else hi - lo
 
 
-def _intrusion(s: SceneState, point: np.ndarray, yaw: float, own: str) -> float:
+def _intrusion(s: SceneState, point: np.ndarray, yaw: float, own: str, skip: tuple = ()) -> float:
     """How much other objects' boxes overlap the open hand at ``point`` (a penalty, ~m^2 x 1e3)."""
     axis = np.array([np.cos(yaw), np.sin(yaw)])
     perp = np.array([-axis[1], axis[0]])
     total = 0.0
     for n, b in s.bodies.items():
-        if n == own or b.lo[2] > point[2] + 0.13:
+        if n == own or n in skip or b.lo[2] > point[2] + 0.13:
             continue
         corners = np.array([[x, y] for x in (b.lo[0], b.hi[0]) for y in (b.lo[1], b.hi[1])]) - point[:2]
         along, across = corners @ axis, corners @ perp
@@ -323,25 +332,47 @@ def _rim_candidates(s: SceneState, name: str, body: Body) -> list[tuple[np.ndarr
         radial = ey if ext[0] > ext[1] else ex  # perpendicular to the handle axis
     else:
         radial = s.eef_pos[:2] - cup
-        if np.linalg.norm(radial) < min(ext) / 4:  # well inside the rim (a grasp point sits on it)
+        if np.linalg.norm(radial) < min(ext) / 2 + RIM_NEAR:  # over the bowl or its rim
             # The hand is over the bowl: the direction to it is ill-defined and swings with
             # every centimetre the hand moves (the target yaw then flips between half-turn
-            # twins within one chunk and the wrist stalls). Pinch along the current finger axis.
+            # twins within one chunk and the wrist stalls; hovering over a rim point, each
+            # turn of the wrist shifts the hand and so the point). Pinch along the current
+            # finger axis.
             radial = s.finger_axis[:2].copy()
         radial = radial / (np.linalg.norm(radial) + 1e-9)
     radius = min(ext) / 2
     z = max(body.hi[2] - min(0.02, 0.5 * body.size[2]), _min_grasp_z(s))
+    sides = [radial, -radial]
+    round_bowl = abs(ext[0] - ext[1]) <= 0.15 * min(ext)
+    if round_bowl:
+        # A round bowl can be pinched anywhere on its rim: also from fixed directions (fixed,
+        # so the target does not turn with the wrist), for when a neighbour crowds the hand
+        # on both sides along the current axis.
+        sides += [np.array([np.cos(k * np.pi / 4), np.sin(k * np.pi / 4)]) for k in range(8)]
     out = []
-    for side in (radial, -radial):
+    for i, side in enumerate(sides):
         xy = cup + side * (radius - WALL)
+        yaw = float(np.arctan2(side[1], side[0]))
         near = 0.01 * np.linalg.norm(xy - s.eef_pos[:2])  # tie-break: the nearer side
-        out.append((np.array([*xy, z]), float(np.arctan2(side[1], side[0])), near))
+        if i >= 2:
+            near += RIM_TURN_COST * abs(_yaw_error(s, yaw))  # a wrist turn, only if it helps
+        if round_bowl:
+            # Far out from the robot (it stands at -x) the arm is nearly straight: its elbow
+            # locks and it cannot lift what it holds.
+            near += REACH_COST * max(0.0, float(xy[0]) - FAR_X)
+        out.append((np.array([*xy, z]), yaw, near))
     return out
 
 
 def pick(s: SceneState, name: str, knobs: Knobs, by_handle: bool = False) -> Step:
     body = s.bodies[name]
     if s.facts.get(f"Grasped({name})", False):
+        if body.lo[2] < s.table_z + 0.04:
+            # Held under an overhang (grasped after `_slide_under`): back out from under it
+            # first, just off the table, then lift.
+            out = _overhang_entry(s, name, body, s.eef_pos, _finger_yaw(s))
+            if out is not None:
+                return Step(move(s.eef_pos, np.array([*out[:2], s.eef_pos[2]]) + [0, 0, 0.005], CLOSE))
         return _lift(s, body)
     by_handle = by_handle and handle(name, body) is not None
     point, yaw = grasp_pose(s, name, knobs, by_handle)
@@ -370,6 +401,11 @@ def pick(s: SceneState, name: str, knobs: Knobs, by_handle: bool = False) -> Ste
         if xy_err < 2 * XY_TOL and abs(err[2]) < 2 * Z_TOL and s.gripper_width > empty:
             return Step(move(s.eef_pos, point, CLOSE))
         return Step(move(s.eef_pos, s.eef_pos + [0, 0, 0.01], OPEN))
+    entry = _overhang_entry(s, name, body, point, yaw)
+    if entry is not None:
+        step = _slide_under(s, name, body, point, entry, yaw_err)
+        if step is not None:
+            return step
     # Hover above the grasp, high enough that the fingertips pass over whatever lies between.
     over = _path_top(s, s.eef_pos[:2], point[:2], name, FINGER_SPAN[1]) + FINGERTIP_BELOW + 0.02
     hover = np.array([point[0], point[1], max(point[2] + HOVER, body.hi[2] + 0.05, over)])
@@ -380,6 +416,65 @@ def pick(s: SceneState, name: str, knobs: Knobs, by_handle: bool = False) -> Ste
         return Step(move(s.eef_pos, _descent_goal(s, name, body, point, yaw), OPEN, yaw_err))
     # Not lined up: line up at hover height (rising first if low, to clear the object).
     if s.eef_pos[2] < hover[2] - 0.03 and xy_err > 0.03:
+        return Step(move(s.eef_pos, np.array([*s.eef_pos[:2], hover[2]]), OPEN, yaw_err))
+    return Step(move(s.eef_pos, hover, OPEN, yaw_err))
+
+
+def _overhang_entry(s: SceneState, name: str, body: Body, point: np.ndarray, yaw: float) -> np.ndarray | None:
+    """Where to come down beside the grasp when something hangs over it (an open drawer).
+
+    The hand is 21 cm long: grasping an object just in front of an open drawer, the hand's
+    end would sit under the drawer, but coming straight down it hits the drawer on the way.
+    So the hand comes down where its footprint is clear of the overhanging part, with the
+    fingertips just above the object's top, and slides in over the object (under the part).
+    Returns that point (eef, at the sliding height), or None if nothing overhangs.
+    Overhangs are the moving parts of articulated fixtures whose underside is above the
+    object; a fixed body's box says nothing about what is under it."""
+    axis = np.array([np.cos(yaw), np.sin(yaw)])
+    perp = np.array([-axis[1], axis[0]])
+    slide_z = body.hi[2] + FINGERTIP_BELOW + SLIDE_CLEARANCE
+    best, best_cost = None, np.inf
+    for a in s.articulations.values():
+        part = a.part
+        if not slide_z + 0.05 < part.lo[2] < slide_z + HOVER + HAND_TOP:
+            continue
+        corners = np.array([[x, y] for x in (part.lo[0], part.hi[0]) for y in (part.lo[1], part.hi[1])]) - point[:2]
+        along, across = corners @ axis, corners @ perp
+        if _overlap(along, -HAND_HALF[0], HAND_HALF[0]) <= 0 or _overlap(across, -HAND_HALF[1], HAND_HALF[1]) <= 0:
+            continue
+        # Shortest slides (along or across the finger axis, either way) that clear the part.
+        for direction, coords, half in ((axis, along, HAND_HALF[0]), (perp, across, HAND_HALF[1])):
+            for sign in (1.0, -1.0):
+                # Moving the hand by -sign * direction * d leaves the part all beyond its end.
+                d = half - float(np.min(sign * coords)) + SLIDE_MARGIN
+                xy = point[:2] - sign * direction * d
+                cost = d + _intrusion(s, np.array([*xy, slide_z]), yaw, name)
+                if cost < best_cost:
+                    best, best_cost = np.array([*xy, slide_z]), cost
+    return best
+
+
+def _slide_under(s: SceneState, name: str, body: Body, point: np.ndarray, entry: np.ndarray,
+                 yaw_err: float) -> Step | None:
+    """Reach a grasp under an overhang: down at ``entry``, then across at the sliding height
+    to above the grasp point, where the normal descent takes over (None: let it)."""
+    xy_err = float(np.linalg.norm(point[:2] - s.eef_pos[:2]))
+    if xy_err < 0.015 and s.eef_pos[2] < entry[2] + 0.015:
+        return None  # over the object, under the overhang: straight down onto the grasp
+    span = entry[:2] - point[:2]
+    length = float(np.linalg.norm(span))
+    u = span / (length + 1e-12)
+    rel = s.eef_pos[:2] - point[:2]
+    t, off = float(rel @ u), float(abs(rel @ np.array([-u[1], u[0]])))
+    level = abs(s.eef_pos[2] - entry[2]) < 0.015
+    if level and off < 0.012 and -0.01 < t < length + 0.012 and abs(yaw_err) < YAW_TOL:
+        return Step(move(s.eef_pos, np.array([*point[:2], entry[2]]), OPEN, yaw_err))  # slide in
+    at_entry = float(np.linalg.norm(entry[:2] - s.eef_pos[:2]))
+    if at_entry < 0.015 and abs(yaw_err) < YAW_TOL and s.eef_pos[2] > entry[2] - 0.015:
+        return Step(move(s.eef_pos, entry, OPEN, yaw_err))  # down beside it
+    over = _path_top(s, s.eef_pos[:2], entry[:2], name, FINGER_SPAN[1]) + FINGERTIP_BELOW + 0.02
+    hover = np.array([entry[0], entry[1], max(entry[2] + HOVER, over)])
+    if s.eef_pos[2] < hover[2] - 0.03 and at_entry > 0.03:
         return Step(move(s.eef_pos, np.array([*s.eef_pos[:2], hover[2]]), OPEN, yaw_err))
     return Step(move(s.eef_pos, hover, OPEN, yaw_err))
 
@@ -509,6 +604,11 @@ def place(s: SceneState, obj: str, target: str, knobs: Knobs, slot: tuple[int, i
     if is_tall(body) and target.endswith("contain_region") and _holder(s, target) is not None:
         bottom = min(bottom, _lowered_bottom(s, target, below))
     release_z = bottom + below + knobs.release_early
+    drawer = _drawer_joint(s, target)
+    if drawer is not None:
+        # The hand (21 cm long) does not fit between a drawer's walls: let go with its
+        # underside just above them (a drop of a centimetre or two).
+        release_z = max(release_z, drawer.part.hi[2] - HAND_ABOVE + DRAWER_WALL_CLEARANCE)
     goal, yaw = _release_pose(s, obj, target, xy[:2], release_z,
                               yaws=None if slot is None else (_slot_yaw(s, obj, target),))
     off = goal - body.pos[:2]
@@ -615,6 +715,8 @@ def _release_pose(s: SceneState, obj: str, target: str, xy: np.ndarray, release_
     body = s.bodies[obj]
     now = _finger_yaw(s)
     hang = body.pos[:2] - s.eef_pos[:2]  # the object's origin relative to the hand
+    if yaws is None and _drawer_joint(s, target) is not None:
+        return _drawer_release_pose(s, obj, target, xy, release_z)
     spots = [(xy, 0.0)]
     if yaws is None and target in s.sites and not target.endswith("contain_region"):
         site = s.sites[target]
@@ -636,6 +738,68 @@ def _release_pose(s: SceneState, obj: str, target: str, xy: np.ndarray, release_
             if total < best_cost:
                 best, best_cost = (spot, yaw), total
     return best
+
+
+def _drawer_joint(s: SceneState, target: str):
+    """The slide joint of a drawer region (a cabinet's top/middle/bottom region), else None."""
+    joints = [s.articulations[n] for n in s.joints_of.get(target, ()) if n in s.articulations]
+    return next((a for a in joints if a.kind == "slide"), None)
+
+
+def _drawer_release_pose(s: SceneState, obj: str, target: str, xy: np.ndarray,
+                         release_z: float) -> tuple[np.ndarray, float]:
+    """Where to let go over an open drawer, and the finger yaw: the object well inside the
+    region, the hand (above the walls) clear of the cabinet's body that the drawer came out of.
+
+    The hand's footprint is 21 x 8 cm and the cabinet's front face is only a few centimetres
+    behind the region's centre, so the generic rule (least overlap with any box) is misled by
+    the cabinet's box, which also contains the open drawer, and picks a spot by a wall (where
+    the fingers land on it). Here the cabinet counts only up to the closed drawer's front."""
+    body = s.bodies[obj]
+    a = _drawer_joint(s, target)
+    owner = _holder(s, target)
+    now = _finger_yaw(s)
+    hang = body.pos[:2] - s.eef_pos[:2]
+    site = s.sites[target]
+    half = np.maximum((np.abs(site.xmat) @ site.size)[:2] - _footprint(body) / 2 - 0.01, 0.0)
+    # The cabinet's body: its box, cut at the drawer's front when closed (along the pull).
+    pull = a.axis[:2] * (1.0 if abs(a.range[1]) >= abs(a.range[0]) else -1.0)
+    pull = pull / (np.linalg.norm(pull) + 1e-12)
+    opened = abs(a.qpos)
+    front = max(float(c @ pull) for c in _xy_corners(a.part)) - opened
+    cab = s.bodies[owner] if owner in s.bodies else None
+    if cab is not None and release_z + HAND_UNDERSIDE > cab.hi[2] + 0.005:
+        cab = None  # the hand passes over the cabinet's top (the top drawer): nothing to avoid
+    grid = np.array([[u, v] for u in np.linspace(-HAND_HALF[0], HAND_HALF[0], 9)
+                     for v in np.linspace(-HAND_HALF[1], HAND_HALF[1], 5)])
+    spots = [xy + np.array([fx, fy]) * half for fx in (-1.0, 0.0, 1.0) for fy in (-1.0, 0.0, 1.0)]
+    best, best_cost = (xy, now), np.inf
+    for yaw in (now, 0.0, np.pi / 2, np.pi / 4, -np.pi / 4):
+        turn = _yaw_error(s, yaw)
+        c, si = np.cos(turn), np.sin(turn)
+        turned = np.array([c * hang[0] - si * hang[1], si * hang[0] + c * hang[1]])
+        axis = np.array([np.cos(yaw), np.sin(yaw)])
+        frame = np.stack([axis, [-axis[1], axis[0]]])  # rows: along, across the finger axis
+        for spot in spots:
+            eef = spot - turned
+            cost = TURN_COST * abs(turn) + 0.3 * float(np.linalg.norm(spot - xy))
+            if cost >= best_cost:
+                continue
+            if cab is not None:
+                # The hand's footprint against the cabinet's body (behind the closed front).
+                pts = eef + grid @ frame
+                inside = (pts @ pull < front) & np.all((pts >= cab.lo[:2]) & (pts <= cab.hi[:2]), axis=1)
+                cost += 50.0 * float(np.sum(front - pts[inside] @ pull))
+            if cost < best_cost:
+                cost += _intrusion(s, np.array([*eef, release_z]), yaw, obj, skip=(owner,))
+            if cost < best_cost:
+                best, best_cost = (spot, yaw), cost
+    return best
+
+
+def _xy_corners(box) -> np.ndarray:
+    """(x, y) corners of a box's world AABB."""
+    return np.array([[x, y] for x in (box.lo[0], box.hi[0]) for y in (box.lo[1], box.hi[1])])
 
 
 def _path_top(s: SceneState, start: np.ndarray, end: np.ndarray, own: str, reach: float) -> float:
