@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from seal.policies.expert import pan
 from seal.sim.scene import Body, SceneState
 
 POS_GAIN = 20.0  # action per metre of position error (saturates at 5 cm)
@@ -195,6 +196,11 @@ def grasp_pose(s: SceneState, name: str, knobs: Knobs, by_handle: bool = False) 
     ``by_handle``: a mug by its handle (`handle_grasp`), if it has one.
     """
     body = s.bodies[name]
+    # A long-handled pan is always held by its handle: its dish is wider than the hand.
+    pinches = pan.handle_grasps(s, name)
+    if pinches:
+        point, yaw = min(pinches, key=lambda c: c[2] + _intrusion(s, c[0], c[1], name))[:2]
+        return point + knobs.grasp_offset, yaw
     by_handle = handle_grasp(s, name) if by_handle else None
     if by_handle is not None:
         point, yaw = by_handle
@@ -307,7 +313,7 @@ def pick(s: SceneState, name: str, knobs: Knobs, by_handle: bool = False) -> Ste
     body = s.bodies[name]
     if s.facts.get(f"Grasped({name})", False):
         return _lift(s, body)
-    by_handle = by_handle and handle(name, body) is not None
+    by_handle = (by_handle and handle(name, body) is not None) or pan.is_pan(name)
     point, yaw = grasp_pose(s, name, knobs, by_handle)
     yaw_err = _yaw_error(s, yaw)
     err = point - s.eef_pos
@@ -341,14 +347,15 @@ def pick(s: SceneState, name: str, knobs: Knobs, by_handle: bool = False) -> Ste
     # which the descent corrects, instead of bouncing back up.
     descending = s.eef_pos[2] < hover[2] - 0.02 and xy_err < 0.025 and abs(yaw_err) < 2 * YAW_TOL
     if (xy_err < 0.015 and abs(yaw_err) < YAW_TOL) or descending:
-        return Step(move(s.eef_pos, _descent_goal(s, name, body, point, yaw), OPEN, yaw_err))
+        return Step(move(s.eef_pos, _descent_goal(s, name, body, point, yaw, by_handle), OPEN, yaw_err))
     # Not lined up: line up at hover height (rising first if low, to clear the object).
     if s.eef_pos[2] < hover[2] - 0.03 and xy_err > 0.03:
         return Step(move(s.eef_pos, np.array([*s.eef_pos[:2], hover[2]]), OPEN, yaw_err))
     return Step(move(s.eef_pos, hover, OPEN, yaw_err))
 
 
-def _descent_goal(s: SceneState, name: str, body: Body, point: np.ndarray, yaw: float) -> np.ndarray:
+def _descent_goal(s: SceneState, name: str, body: Body, point: np.ndarray, yaw: float,
+                  by_handle: bool = False) -> np.ndarray:
     """The grasp point, or a point just above the object until the hand is centred on it.
 
     The open fingers leave only millimetres of slack around a can: a finger that passes the
@@ -358,7 +365,9 @@ def _descent_goal(s: SceneState, name: str, body: Body, point: np.ndarray, yaw: 
     err = point[:2] - s.eef_pos[:2]
     axis = np.array([np.cos(yaw), np.sin(yaw)])
     along, across = abs(err @ axis), abs(err @ np.array([-axis[1], axis[0]]))
-    if along < _along_tolerance(name, body, yaw) and across < XY_TOL:
+    # A handle is narrow (a mug's bar, a pan's 2.5 cm): the open fingers have centimetres of room.
+    tol = 0.012 if by_handle else _along_tolerance(name, body, yaw)
+    if along < tol and across < XY_TOL:
         return point
     return np.array([*point[:2], max(point[2], body.hi[2] + FINGERTIP_BELOW + 0.01)])
 
