@@ -21,8 +21,21 @@ from dataclasses import dataclass
 import numpy as np
 
 from seal.policies.expert import pan
-from seal.policies.expert.skills import (CLOSE, HAND_HALF, OPEN, YAW_TOL, Z_TOL, Knobs, Step,
-                                         _path_top, _yaw_error, carry, hold, let_go_and_rise, move)
+from seal.policies.expert.skills import (
+    CLOSE,
+    HAND_HALF,
+    OPEN,
+    YAW_TOL,
+    Z_TOL,
+    Knobs,
+    Step,
+    _path_top,
+    _yaw_error,
+    carry,
+    hold,
+    let_go_and_rise,
+    move,
+)
 from seal.sim.scene import Body, SceneState
 
 # Which way each open-fronted fixture's open side faces, in the fixture's own frame (x, y).
