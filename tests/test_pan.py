@@ -55,3 +55,18 @@ def test_expert_slides_the_pan_under_the_shelf(shelf_world):
     result = run_policy_episode(shelf_world, policy, init_index=0)
     assert result.success, result.goal_status
     assert shelf_world.check(f"In({PAN}, {BOTTOM})")
+
+
+def test_a_drooping_pan_is_let_go_and_a_level_one_lifted_slowly(shelf_world):
+    from dataclasses import replace
+
+    s = shelf_world.scene_state()
+    held = replace(s, facts={**s.facts, f"Grasped({PAN})": True})
+    level = skills.pick(held, PAN, skills.Knobs())
+    assert level.action[6] == skills.CLOSE and 0 < level.action[2] <= pan.LIFT_RATE
+    # Tilted 30 degrees about x (the dish's rim still on the table): open and start over.
+    angle = np.radians(30)
+    tilted = replace(s.bodies[PAN], quat=np.array([np.cos(angle / 2), np.sin(angle / 2), 0.0, 0.0]))
+    drooping = replace(held, bodies={**s.bodies, PAN: tilted})
+    assert pan.tilt(tilted) == pytest.approx(angle)
+    assert skills.pick(drooping, PAN, skills.Knobs()).action[6] == skills.OPEN

@@ -47,8 +47,6 @@ RELEASE_DROP = 0.008  # ... and this far when let go
 INSIDE = 0.04  # the origin this far inside the region's front face when let go
 STAGE_GAP = 0.03  # in front of the shelf: the whole object this far out of its front face
 HAND_GAP = 0.02  # the hand's front stays this far out of the shelf's front face
-UPRIGHT_GAIN = 0.6  # rotation action per radian of the held object's tilt
-MAX_HAND_TILT = 0.5  # radians the hand may lean off pointing down to keep the object level
 
 
 @dataclass(frozen=True)
@@ -103,16 +101,7 @@ def level(s: SceneState, obj: str, target: str) -> Level | None:
 
 
 def _upright(s: SceneState, body: Body, action: np.ndarray) -> Step:
-    """Lean the hand against the held object's tilt (held at the end of its handle, a pan
-    droops about the finger axis), within a limit."""
-    w, x, y, zq = body.quat
-    z_axis = np.array([2 * (x * zq + w * y), 2 * (y * zq - w * x), 1 - 2 * (x * x + y * y)])
-    fix = UPRIGHT_GAIN * np.cross(z_axis, [0.0, 0.0, 1.0])
-    tilt = float(np.arccos(np.clip(-s.eef_xmat[2, 2], -1.0, 1.0)))
-    if tilt > MAX_HAND_TILT:  # do not lean further
-        away = np.cross(s.eef_xmat[:, 2], [0.0, 0.0, -1.0])
-        fix = fix - min(0.0, float(fix @ away)) * away / (away @ away + 1e-12)
-    action[3:5] = np.clip(fix[:2], -1.0, 1.0)
+    action[3:5] = pan.leveling(s, body)
     return Step(action)
 
 

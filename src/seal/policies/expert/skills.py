@@ -312,7 +312,7 @@ def _rim_candidates(s: SceneState, name: str, body: Body) -> list[tuple[np.ndarr
 def pick(s: SceneState, name: str, knobs: Knobs, by_handle: bool = False) -> Step:
     body = s.bodies[name]
     if s.facts.get(f"Grasped({name})", False):
-        return _lift(s, body)
+        return _lift_by_handle(s, body) if pan.is_pan(name) else _lift(s, body)
     by_handle = (by_handle and handle(name, body) is not None) or pan.is_pan(name)
     point, yaw = grasp_pose(s, name, knobs, by_handle)
     yaw_err = _yaw_error(s, yaw)
@@ -394,6 +394,19 @@ def _lift(s: SceneState, body: Body) -> Step:
     if body.lo[2] > s.table_z + 0.08 or (body.lo[2] > s.table_z + 0.06 and s.eef_pos[2] > lift - 0.04):
         return Step(hold(CLOSE), done=True)
     return Step(move(s.eef_pos, np.array([*s.eef_pos[:2], lift]), CLOSE))
+
+
+def _lift_by_handle(s: SceneState, body: Body) -> Step:
+    """Lift a pan held at its handle: slowly, leaning the hand against the dish's droop (its
+    weight turns the handle in the pads). If it droops too far anyway, let go: the dish falls
+    back flat from a few centimetres and the pick starts over."""
+    if pan.tilt(body) > pan.MAX_DROOP:
+        return Step(move(s.eef_pos, s.eef_pos, OPEN))
+    step = _lift(s, body)
+    step.action[2] = min(step.action[2], pan.LIFT_RATE)
+    if not step.done:
+        step.action[3:5] = pan.leveling(s, body)
+    return step
 
 
 def place_point(s: SceneState, obj: str, target: str) -> tuple[np.ndarray, float]:
