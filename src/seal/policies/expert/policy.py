@@ -15,7 +15,7 @@ import numpy as np
 
 from seal.errors import InvalidInput
 from seal.policies.base import ACTION_HORIZON, PREDICT_HORIZON, ActionChunk, Reasoning
-from seal.policies.expert import lay, shelf, skills, stow, upright
+from seal.policies.expert import lay, shelf, shelf_slide, skills, stow, upright
 from seal.policies.expert.plan import SubPlan, category, decompose
 from seal.sim.goals import GoalAtom
 from seal.sim.observation import Observation
@@ -184,6 +184,8 @@ class ScriptedExpert:
         if sub.skill == "pick":
             return skills.pick(s, attempt.acting_on, attempt.knobs, by_handle=self._stowing_next(sub, s, attempt))
         if sub.skill == "place":
+            if shelf_slide.level(s, sub.obj, attempt.target) is not None:  # a pan, dish first into a level
+                return shelf_slide.slide_in(s, sub.obj, attempt.target, attempt.knobs)
             if stow.stowing(s, sub.obj, attempt.target) is not None:
                 return stow.place_inside(s, sub.obj, attempt.target, attempt.knobs)
             if shelf.under_roof(s, sub.obj, attempt.target) is not None:  # a shelf's upper level

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from seal.policies.expert import pan
 from seal.sim.scene import Body, SceneState
 
 POS_GAIN = 20.0  # action per metre of position error (saturates at 5 cm)
@@ -205,6 +206,11 @@ def grasp_pose(s: SceneState, name: str, knobs: Knobs, by_handle: bool = False) 
     ``by_handle``: a mug by its handle (`handle_grasp`), if it has one.
     """
     body = s.bodies[name]
+    # A long-handled pan is always held by its handle: its dish is wider than the hand.
+    pinches = pan.handle_grasps(s, name)
+    if pinches:
+        point, yaw = min(pinches, key=lambda c: c[2] + _intrusion(s, c[0], c[1], name))[:2]
+        return point + knobs.grasp_offset, yaw
     by_handle = handle_grasp(s, name) if by_handle else None
     if by_handle is not None:
         point, yaw = by_handle
@@ -373,8 +379,8 @@ def pick(s: SceneState, name: str, knobs: Knobs, by_handle: bool = False) -> Ste
             out = _overhang_entry(s, name, body, s.eef_pos, _finger_yaw(s))
             if out is not None:
                 return Step(move(s.eef_pos, np.array([*out[:2], s.eef_pos[2]]) + [0, 0, 0.005], CLOSE))
-        return _lift(s, body)
-    by_handle = by_handle and handle(name, body) is not None
+        return _lift_by_handle(s, body) if pan.is_pan(name) else _lift(s, body)
+    by_handle = (by_handle and handle(name, body) is not None) or pan.is_pan(name)
     point, yaw = grasp_pose(s, name, knobs, by_handle)
     yaw_err = _yaw_error(s, yaw)
     err = point - s.eef_pos
@@ -413,7 +419,7 @@ def pick(s: SceneState, name: str, knobs: Knobs, by_handle: bool = False) -> Ste
     # which the descent corrects, instead of bouncing back up.
     descending = s.eef_pos[2] < hover[2] - 0.02 and xy_err < 0.025 and abs(yaw_err) < 2 * YAW_TOL
     if (xy_err < 0.015 and abs(yaw_err) < YAW_TOL) or descending:
-        return Step(move(s.eef_pos, _descent_goal(s, name, body, point, yaw), OPEN, yaw_err))
+        return Step(move(s.eef_pos, _descent_goal(s, name, body, point, yaw, by_handle), OPEN, yaw_err))
     # Not lined up: line up at hover height (rising first if low, to clear the object).
     if s.eef_pos[2] < hover[2] - 0.03 and xy_err > 0.03:
         return Step(move(s.eef_pos, np.array([*s.eef_pos[:2], hover[2]]), OPEN, yaw_err))
@@ -479,7 +485,8 @@ def _slide_under(s: SceneState, name: str, body: Body, point: np.ndarray, entry:
     return Step(move(s.eef_pos, hover, OPEN, yaw_err))
 
 
-def _descent_goal(s: SceneState, name: str, body: Body, point: np.ndarray, yaw: float) -> np.ndarray:
+def _descent_goal(s: SceneState, name: str, body: Body, point: np.ndarray, yaw: float,
+                  by_handle: bool = False) -> np.ndarray:
     """The grasp point, or a point just above the object until the hand is centred on it.
 
     The open fingers leave only millimetres of slack around a can: a finger that passes the
@@ -489,7 +496,9 @@ def _descent_goal(s: SceneState, name: str, body: Body, point: np.ndarray, yaw: 
     err = point[:2] - s.eef_pos[:2]
     axis = np.array([np.cos(yaw), np.sin(yaw)])
     along, across = abs(err @ axis), abs(err @ np.array([-axis[1], axis[0]]))
-    if along < _along_tolerance(name, body, yaw, point[2]) and across < XY_TOL:
+    # A handle is narrow (a mug's bar, a pan's 2.5 cm): the open fingers have centimetres of room.
+    tol = 0.012 if by_handle else _along_tolerance(name, body, yaw, point[2])
+    if along < tol and across < XY_TOL:
         return point
     return np.array([*point[:2], max(point[2], body.hi[2] + FINGERTIP_BELOW + 0.01)])
 
@@ -522,6 +531,19 @@ def _lift(s: SceneState, body: Body) -> Step:
     if body.lo[2] > s.table_z + 0.08 or (body.lo[2] > s.table_z + 0.06 and s.eef_pos[2] > lift - 0.04):
         return Step(hold(CLOSE), done=True)
     return Step(move(s.eef_pos, np.array([*s.eef_pos[:2], lift]), CLOSE))
+
+
+def _lift_by_handle(s: SceneState, body: Body) -> Step:
+    """Lift a pan held at its handle: slowly, leaning the hand against the dish's droop (its
+    weight turns the handle in the pads). If it droops too far anyway, let go: the dish falls
+    back flat from a few centimetres and the pick starts over."""
+    if pan.tilt(body) > pan.MAX_DROOP:
+        return Step(move(s.eef_pos, s.eef_pos, OPEN))
+    step = _lift(s, body)
+    step.action[2] = min(step.action[2], pan.LIFT_RATE)
+    if not step.done:
+        step.action[3:5] = pan.leveling(s, body)
+    return step
 
 
 def place_point(s: SceneState, obj: str, target: str) -> tuple[np.ndarray, float]:
