@@ -6,8 +6,8 @@ last, so a task's episodes on one worker share one world build; no rendering).
 
 A full LIBERO-10 run is 1,000 episodes, so with ``--log FILE`` every finished episode is
 appended to a JSONL file as it lands; running the same command again skips the episodes
-already there. Rows carry the code version (git commit, ``-dirty`` for uncommitted changes):
-a log written by other code is refused rather than silently mixed into the figures.
+already there. Rows carry the code version (git tree hash of ``src/``, ``-dirty`` for uncommitted
+changes): a log written by other code is refused rather than silently mixed into the figures.
 """
 
 from __future__ import annotations
@@ -46,11 +46,12 @@ def _episode(job: tuple) -> dict:
 
 
 def code_version() -> str:
-    """The git commit of the running code, ``-dirty`` when the tree has uncommitted changes."""
+    """The git tree hash of ``src/`` (commits that touch only docs or tests keep it), with
+    ``-dirty`` when ``src/`` has uncommitted changes."""
     root = Path(__file__).resolve().parents[3]
     try:
-        commit = subprocess.run(["git", "-C", str(root), "rev-parse", "--short=12", "HEAD"], capture_output=True,
-                                text=True, check=True).stdout.strip()
+        commit = "src@" + subprocess.run(["git", "-C", str(root), "rev-parse", "--short=12", "HEAD:src"],
+                                         capture_output=True, text=True, check=True).stdout.strip()
         dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no", "src"],
                                capture_output=True, text=True, check=True).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
