@@ -3,6 +3,7 @@ the geometry the expert reads from real worlds, and (slow) whole episodes."""
 
 import numpy as np
 import pytest
+from _worlds import world_at
 
 from seal.episode import run_policy_episode
 from seal.policies.expert import shelf, upright
@@ -15,18 +16,14 @@ SHELF_TOP, SHELF_BOTTOM = "wooden_two_layer_shelf_1_top_region", "wooden_two_lay
 
 @pytest.fixture(scope="module")
 def caddy_scene():
-    w = LiberoWorld(("libero_90", 73))
-    w.reset(0)
-    yield w.scene_state()
-    w.close()
+    with world_at("libero_90", 73) as w:
+        yield w.scene_state()
 
 
 @pytest.fixture(scope="module")
 def shelf_scene():
-    w = LiberoWorld(("libero_90", 86))
-    w.reset(0)
-    yield w.scene_state()
-    w.close()
+    with world_at("libero_90", 86) as w:
+        yield w.scene_state()
 
 
 def _wide_angle_after(s, yaw):

@@ -5,11 +5,11 @@ shelf's middle board)."""
 
 import numpy as np
 import pytest
+from _worlds import world_at
 
 from seal.episode import run_policy_episode
 from seal.policies.expert import pan, shelf_slide, skills
 from seal.policies.expert.policy import FailureKnobs, ScriptedExpert
-from seal.sim.world import LiberoWorld
 
 PAN = "chefmate_8_frypan_1"
 BOTTOM, TOP = "wooden_two_layer_shelf_1_bottom_region", "wooden_two_layer_shelf_1_top_region"
@@ -17,10 +17,8 @@ BOTTOM, TOP = "wooden_two_layer_shelf_1_bottom_region", "wooden_two_layer_shelf_
 
 @pytest.fixture(scope="module")
 def shelf_world():
-    w = LiberoWorld(("libero_90", 42))
-    w.reset(0)
-    yield w
-    w.close()
+    with world_at("libero_90", 42) as w:
+        yield w
 
 
 def test_pan_is_held_across_its_handle_not_over_its_dish(shelf_world):

@@ -3,6 +3,7 @@ real LIBERO worlds (LIBERO-10 tasks 9 and 8), and the expert solving task 9 end 
 
 import numpy as np
 import pytest
+from _worlds import world_at
 
 from seal.episode import run_policy_episode
 from seal.policies.expert import skills, stow
@@ -15,10 +16,8 @@ MUG, REGION = "white_yellow_mug_1", "microwave_1_heating_region"
 
 @pytest.fixture(scope="module")
 def microwave_world():
-    w = LiberoWorld(("libero_10", 9))
-    w.reset(0)
-    yield w
-    w.close()
+    with world_at("libero_10", 9) as w:
+        yield w
 
 
 def test_doorway_is_read_from_the_door(microwave_world):

@@ -4,6 +4,7 @@ and slots in a basket shared with a carton. Geometry is read from real LIBERO wo
 
 import numpy as np
 import pytest
+from _worlds import world_at
 from openpi_client import msgpack_numpy
 
 from seal.episode import run_policy_episode
@@ -17,10 +18,8 @@ KETCHUP, DRAWER = "ketchup_1", "white_cabinet_1_top_region"
 
 @pytest.fixture(scope="module")
 def drawer_world():
-    w = LiberoWorld(("libero_90", 32))  # put the ketchup in the top drawer of the cabinet
-    w.reset(0)
-    yield w
-    w.close()
+    with world_at("libero_90", 32) as w:  # put the ketchup in the top drawer of the cabinet
+        yield w
 
 
 def test_ketchup_is_gripped_at_its_cap_not_its_body(drawer_world):
