@@ -256,18 +256,10 @@ def _scene(obs: Observation) -> SceneState:
 
 def _advance(s: SceneState, action: np.ndarray) -> SceneState:
     """The scene after one action, moving only the end effector (a kinematic guess)."""
-    # Turn the whole gripper frame (world-frame axis-angle), not just the finger axis: the
-    # articulated skills steer roll and pitch from it, and a chunk that did not see its own
-    # tilt correction take effect would keep correcting for all of its steps (overshoot).
-    rotvec = RADIANS_PER_ACTION * np.asarray(action[3:6], dtype=np.float64)
-    angle = float(np.linalg.norm(rotvec))
-    if angle < 1e-9:
-        return replace(s, eef_pos=s.eef_pos + METRES_PER_ACTION * action[:3])
-    k = rotvec / angle
-    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    rot = np.eye(3) + np.sin(angle) * kx + (1 - np.cos(angle)) * kx @ kx
-    return replace(s, eef_pos=s.eef_pos + METRES_PER_ACTION * action[:3], finger_axis=rot @ s.finger_axis,
-                   eef_xmat=rot @ s.eef_xmat)
+    yaw = RADIANS_PER_ACTION * action[5]
+    c, si = np.cos(yaw), np.sin(yaw)
+    rot = np.array([[c, -si, 0], [si, c, 0], [0, 0, 1]])
+    return replace(s, eef_pos=s.eef_pos + METRES_PER_ACTION * action[:3], finger_axis=rot @ s.finger_axis)
 
 
 __all__ = ["ScriptedExpert", "FailureKnobs", "progress", "category", "ACTION_HORIZON"]
