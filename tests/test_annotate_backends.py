@@ -450,7 +450,10 @@ def test_sigint_mid_run_then_resume(server, tmp_path, dataset):
     cmd = [sys.executable, "-c", "import sys; from seal.cli import main; sys.exit(main())", "annotate",
            str(dataset), "--backend", "openai", "--base-url", f"{server.url}/v1", "--out", str(out),
            "--concurrency", "1"]
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # SIG_DFL in the child: under a background job SIGINT arrives ignored, and Python then never
+    # installs its KeyboardInterrupt handler (the Ctrl-C would be lost, not tested).
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         # Generous: a fresh venv's first import compiles every package, slow on a loaded machine.
         deadline = time.monotonic() + 180
