@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from seal.errors import InvalidInput
-from seal.sim.suites import get_task, task_count
+from seal.sim.suites import get_task, parse_task_ids
 
 _SETTINGS = ("clean", "misaligned")
 _cache: dict = {}  # per worker process: the last task's world (built once per task, not per episode)
@@ -82,18 +82,6 @@ def read_log(path: Path, version: str) -> dict[tuple, dict]:
     return done
 
 
-def _parse_tasks(suite: str, spec: str) -> list[int]:
-    if not spec:
-        return list(range(task_count(suite)))
-    try:
-        tasks = [int(t) for t in spec.split(",")]
-    except ValueError:
-        raise InvalidInput(f"--tasks must be comma-separated task ids, got {spec!r}") from None
-    for t in tasks:
-        get_task(suite, t)  # raises InvalidInput naming the valid range
-    return tasks
-
-
 def summarize(rows: list[dict], suite: str, trials: int, first_init: int) -> dict:
     """The benchmark's JSON: per-task success (fractions) per setting, steps, failing inits."""
     out: dict = {"suite": suite, "trials": trials, "first_init": first_init, "episodes": len(rows)}
@@ -117,7 +105,7 @@ def summarize(rows: list[dict], suite: str, trials: int, first_init: int) -> dic
 
 def run(args) -> dict:
     suite = args.suite
-    tasks = _parse_tasks(suite, args.tasks)
+    tasks = parse_task_ids(suite, args.tasks)
     first = int(getattr(args, "first_init", 0) or 0)
     if args.trials < 1 or first < 0:
         raise InvalidInput(f"--trials must be >= 1 and --first-init >= 0, got {args.trials} and {first}")

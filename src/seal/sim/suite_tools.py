@@ -14,23 +14,11 @@ from pathlib import Path
 import numpy as np
 
 from seal.errors import InvalidInput
-from seal.sim.suites import SUITES, TaskSpec, get_task, list_tasks, task_count
+from seal.sim.suites import SUITES, TaskSpec, get_task, list_tasks, parse_task_ids, task_count
 
 TILE = 224  # the policy image size
 CAPTION_H = 84
 COLUMNS = 5
-
-
-def _task_ids(suite: str, text: str) -> list[int]:
-    if not text:
-        return list(range(task_count(suite)))
-    try:
-        ids = [int(t) for t in text.split(",")]
-    except ValueError:
-        raise InvalidInput(f"--tasks must be comma-separated integers, got {text!r}") from None
-    for t in ids:
-        get_task(suite, t)
-    return ids
 
 
 # ---- list ----------------------------------------------------------------------------------
@@ -172,7 +160,7 @@ def main(args) -> int:
                           {"tasks": task_count(s)} for s in suites}, indent=2))
         return 0
     suite = args.suite
-    tasks = _task_ids(suite, args.tasks)
+    tasks = parse_task_ids(suite, args.tasks)
     if cmd == "show":
         with console.status("") as status:
             out = show(suite, Path(args.out), tasks, args.init,

@@ -245,3 +245,16 @@ _DERIVED = {
     "visual_viewpoint": _visual_viewpoint,
     "composition": _composition,
 }
+
+
+def parse_task_ids(suite: str, text: str) -> list[int]:
+    """``--tasks`` text ("0,3,7"; empty: every task) -> validated task ids of ``suite``."""
+    if not text:
+        return list(range(task_count(suite)))
+    try:
+        ids = [int(t) for t in text.split(",")]
+    except ValueError:
+        raise InvalidInput(f"--tasks must be comma-separated task ids, got {text!r}") from None
+    for t in ids:
+        get_task(suite, t)  # raises InvalidInput naming the valid range
+    return ids
