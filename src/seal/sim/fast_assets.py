@@ -5,8 +5,8 @@ On CPU rendering (Mesa llvmpipe) a LIBERO-10 frame costs ~11 ms fixed plus ~0.45
 Here we build a *render-only* model of the scene in which every drawn mesh is
 quadric-decimated and every texture image is downsampled. Physics never sees this model
 (`SceneRenderer` copies positions into it before drawing), so collision geometry is
-untouched where it matters - in the physics model - and may be simplified here, where it
-is only drawn (robosuite draws the Panda's collision meshes too).
+untouched where it matters - in the physics model. Only meshes a stock camera draws are
+decimated (collision meshes, group 0, are hidden as robosuite hides them).
 
 Prepared assets are cached on disk (``$XDG_CACHE_HOME/seal/fast_assets``), keyed by the
 source mesh's content and the settings, so each mesh is decimated once per machine.
@@ -23,6 +23,8 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
+
+from seal.sim.render import VISIBLE_GEOM_GROUPS
 
 CACHE_VERSION = 6
 
@@ -62,11 +64,12 @@ def build_fast_model(scene_xml: str, settings: FastRenderSettings = FastRenderSe
 
 
 def _drawn_mesh_ids(model: mujoco.MjModel) -> set[int]:
-    """Meshes some visible geom draws (alpha > 0, in a group MuJoCo shows by default)."""
+    """Meshes some visible geom draws (alpha > 0, in a group a stock LIBERO camera shows)."""
     return {
         int(model.geom_dataid[g])
         for g in range(model.ngeom)
-        if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH and model.geom_rgba[g][3] > 0 and model.geom_group[g] <= 2
+        if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH and model.geom_rgba[g][3] > 0
+        and model.geom_group[g] in VISIBLE_GEOM_GROUPS
     }
 
 

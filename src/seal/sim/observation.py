@@ -1,7 +1,12 @@
 """Observations in openpi's LIBERO convention, so real pi0 servers plug in unchanged.
 
-- images: rendered at 256, rotated 180 degrees (LIBERO cameras come out upside down),
-  resized with zero padding to 224 using openpi-client's own ``resize_with_pad``;
+- images: rendered at 256, mirrored left-right, resized with zero padding to 224 using
+  openpi-client's own ``resize_with_pad``. Why a mirror: robosuite's offscreen camera hands
+  out rows bottom-up and openpi turns those frames by 180 degrees (``[::-1, ::-1]``), which puts
+  them upright but mirrored. ``mujoco.Renderer`` already returns upright rows, so the same
+  pixels need only the column flip. (Turning an upright render by 180 degrees, as this module
+  once did, shows the robot upside down at the bottom of the frame.) Scene visibility matches
+  robosuite's too (``seal.sim.render``); ``tests/test_pixels.py`` holds both to the package;
 - state (8): end-effector position (3), axis-angle of the end-effector quaternion (3),
   gripper finger joint positions (2);
 - prompt: the task's language instruction.
@@ -53,6 +58,6 @@ def quat_xyzw_to_axis_angle(quat: np.ndarray) -> np.ndarray:
 
 
 def to_policy_image(raw: np.ndarray, size: int = IMAGE_SIZE) -> np.ndarray:
-    """A raw MuJoCo render -> the policy's view: rotate 180 degrees, pad-resize to ``size``."""
-    upright = np.ascontiguousarray(raw[::-1, ::-1])
-    return image_tools.convert_to_uint8(image_tools.resize_with_pad(upright, size, size))
+    """An upright render -> the policy's view: mirror left-right as openpi's frames are, pad-resize to ``size``."""
+    mirrored = np.ascontiguousarray(raw[:, ::-1])
+    return image_tools.convert_to_uint8(image_tools.resize_with_pad(mirrored, size, size))

@@ -11,7 +11,12 @@ What "everything" is was found by experiment (see tests/test_world.py):
 
 - the OSC controller's goal orientation (and position): robosuite keeps the previous
   ``goal_ori`` whenever an action's rotation part is exactly zero, so the goal is history too
-  (scripted policies send zero rotations all the time; random actions never do).
+  (scripted policies send zero rotations all the time; random actions never do);
+- where the fixtures stand: LIBERO places cabinets, racks and microwaves by moving their
+  bodies in the model, differently per episode (``seal.sim.layout``), so a worker that was
+  built or reset for another episode needs them to continue this one;
+- the latest camera sample and robosuite's observation clock (``seal.sim.view``): images show
+  the instant the clock last sampled, not the end of the step.
 
 Restoring also marks the controller stale so it re-reads the restored pose.
 """
@@ -34,6 +39,8 @@ class Snapshot:
     steps: int = 0  # control steps of the episode so far, settle steps excluded
     goal_ori: np.ndarray | None = None  # OSC controller goal orientation (3, 3)
     goal_pos: np.ndarray | None = None  # OSC controller goal position (3,)
+    fixtures: np.ndarray | None = None  # (n, 7) fixture body poses, seal.sim.layout
+    view: np.ndarray | None = None  # observation clock and sample, seal.sim.view
     id: str = field(default="", compare=False)
 
     def __post_init__(self) -> None:
@@ -42,7 +49,7 @@ class Snapshot:
             h.update(self.task_key.encode())
             h.update(np.ascontiguousarray(self.physics).tobytes())
             h.update(np.ascontiguousarray(self.gripper_action).tobytes())
-            for extra in (self.goal_ori, self.goal_pos):
+            for extra in (self.goal_ori, self.goal_pos, self.fixtures, self.view):
                 if extra is not None:
                     h.update(np.ascontiguousarray(extra).tobytes())
             h.update(f"{self.timestep}:{self.cur_time!r}:{self.steps}".encode())

@@ -24,14 +24,14 @@ from seal.sim.observation import (
     RENDER_SIZE,
     WRIST_CAMERA,
     Observation,
-    quat_xyzw_to_axis_angle,
     to_policy_image,
 )
-from seal.sim import background
+from seal.sim import background, layout
 from seal.sim.render import RENDER_MODES, SceneRenderer
 from seal.sim.scene import SceneReader, SceneState
 from seal.sim.snapshot import Snapshot
 from seal.sim.suites import TaskSpec, get_task
+from seal.sim.view import ViewClock
 
 ACTION_DIM = 7
 SETTLE_STEPS = 10  # openpi waits this many no-op steps for objects to drop and settle
@@ -92,8 +92,12 @@ def _build_robosuite_env(task: TaskSpec):
         hard_reset=False,  # we reset by restoring states; never recompile the model
         **room,
     )
-    env.seed(7)  # what openpi does; only matters for LIBERO's own placement sampling
-    env.reset()
+    # A first soft reset initialises the sim. Its placement draws (on numpy's global RNG, kept
+    # apart from the caller's) give the build's own layout, which the derived suites' generated
+    # init states and the viewpoint cameras were made with; `reset(i)` then moves the fixtures
+    # to where openpi's evaluation has them for episode i (seal.sim.layout).
+    with layout._GlobalRNG(layout.OPENPI_SEED):
+        env.reset()
     return env.env
 
 
@@ -131,6 +135,8 @@ class LiberoWorld:
         if physics is not None:
             physics.apply(self.model)
         self._init_states: np.ndarray | None = None  # loaded on first use (generators have none yet)
+        self._starts = layout.OpenpiStarts(self._env)  # per-episode fixture placements, on demand
+        self._view = ViewClock(self._env)  # the instant observations show (seal.sim.view)
         self._renderer: SceneRenderer | None = None
         self._scene: SceneReader | None = None  # built on first privileged read
         self._steps = 0
@@ -165,31 +171,44 @@ class LiberoWorld:
 
     # ---- episode control ---------------------------------------------------------------
     def reset(self, init_index: int = 0, *, settle: bool = True) -> None:
-        """Load official init state ``init_index``, then take the settle steps (not counted)."""
+        """Start episode ``init_index`` as openpi's LIBERO evaluation does: its fixture placements
+        and controller goal (``seal.sim.layout``), official init state ``init_index``, then the
+        settle steps (not counted)."""
         n = self.num_init_states
         if isinstance(init_index, bool) or not isinstance(init_index, (int, np.integer)) or not 0 <= init_index < n:
             raise InvalidInput(f"init state index {init_index!r} out of range for {self.task.key}; valid: 0..{n - 1}")
-        self.reset_to_state(self.init_states[init_index], settle=settle)
+        start = self._starts[int(init_index)]
+        self.reset_to_state(self.init_states[init_index], settle=settle, start=start)
 
-    def reset_to_state(self, state: np.ndarray, *, settle: bool = True) -> None:
-        """Like `reset`, from a flattened MuJoCo state (time, qpos, qvel) of this task's model."""
+    def reset_to_state(self, state: np.ndarray, *, settle: bool = True,
+                       start: layout.EpisodeStart | None = None) -> None:
+        """Like `reset`, from a flattened MuJoCo state (time, qpos, qvel) of this task's model.
+
+        Without ``start`` the fixtures stay where they are and the controller starts from the
+        loaded pose."""
         state = np.asarray(state, dtype=np.float64)
         expected = 1 + self.model.nq + self.model.nv
         if state.shape != (expected,):
             raise InvalidInput(f"init state of {self.task.key} must have shape ({expected},) = (1 + nq + nv,), "
                                f"got {state.shape}")
         env = self._env
+        if start is not None:
+            layout.write_fixtures(env, start.fixtures)
         # A fresh MjData's state: no warm start, ctrl or forces left over from earlier episodes.
         mujoco.mj_resetData(self.model, self.data)
         env.sim.set_state_from_flattened(state)
         env.robots[0].gripper.current_action = np.zeros(env.robots[0].gripper.dof)
         env.timestep, env.cur_time, env.done = 0, 0.0, False
         self._after_state_change()
-        # A fresh controller's goal is the current pose; without this the previous episode's
-        # goal orientation survives (robosuite keeps it while rotation actions are zero).
+        # Without this the previous episode's goal orientation would survive (robosuite keeps it
+        # while rotation actions are zero). openpi's episodes start from the reset pose's instead.
         controller = env.robots[0].controller
-        controller.update(force=True)
-        controller.reset_goal()
+        if start is not None:
+            start.apply_controller(controller)
+        else:
+            controller.update(force=True)
+            controller.reset_goal()
+        self._view.restart()
         if settle:
             for _ in range(SETTLE_STEPS):
                 self._physics_step(SETTLE_ACTION)
@@ -229,17 +248,23 @@ class LiberoWorld:
             steps=self._steps,
             goal_ori=np.array(env.robots[0].controller.goal_ori, dtype=np.float64),
             goal_pos=np.array(env.robots[0].controller.goal_pos, dtype=np.float64),
+            fixtures=layout.read_fixtures(env),
+            view=self._view.get(),
         )
 
     def restore(self, snap: Snapshot) -> None:
         if snap.task_key != self.task.key:
             raise InvalidInput(f"snapshot of task {snap.task_key} cannot be restored into {self.task.key}")
         env = self._env
+        if snap.fixtures is not None:
+            layout.write_fixtures(env, snap.fixtures)
         mujoco.mj_setState(self.model, self.data, snap.physics, _STATE_SPEC)
         env.robots[0].gripper.current_action = snap.gripper_action.copy()
         env.timestep, env.cur_time, env.done = snap.timestep, snap.cur_time, False
         self._steps = snap.steps
         self._after_state_change()
+        if snap.view is not None:
+            self._view.set(snap.view)
         controller = env.robots[0].controller
         if snap.goal_ori is not None:
             controller.goal_ori = snap.goal_ori.copy()
@@ -247,14 +272,9 @@ class LiberoWorld:
 
     # ---- observation --------------------------------------------------------------------
     def state_vector(self) -> np.ndarray:
-        """openpi's 8-d LIBERO state: eef position, eef axis-angle, gripper joint positions."""
-        env, robot = self._env, self._env.robots[0]
-        d = env.sim.data
-        pos = np.array(d.site_xpos[robot.eef_site_id])
-        wxyz = d.get_body_xquat(robot.robot_model.eef_name)
-        xyzw = np.array([wxyz[1], wxyz[2], wxyz[3], wxyz[0]])
-        grip = np.array([d.qpos[i] for i in robot._ref_gripper_joint_pos_indexes])
-        return np.concatenate([pos, quat_xyzw_to_axis_angle(xyzw), grip])
+        """openpi's 8-d LIBERO state: eef position, eef axis-angle, gripper joint positions, read
+        at the instant robosuite's sensors sample (``seal.sim.view``)."""
+        return self._view.state()
 
     def scene_state(self, atoms=()) -> SceneState:
         """Privileged: the narrow view scripted policies read (poses, sizes, joints, facts).
@@ -278,10 +298,11 @@ class LiberoWorld:
         return obs
 
     def render_raw(self, cameras=(AGENT_CAMERA,), size: int = RENDER_SIZE) -> dict[str, np.ndarray]:
-        """Raw MuJoCo renders (upside down, as LIBERO's cameras produce them)."""
+        """Upright camera images at ``size`` of the instant robosuite's cameras sample
+        (``seal.sim.view``); ``to_policy_image`` turns one into openpi's view."""
         renderer = self._get_renderer(size)
         try:
-            return renderer.render_many(self.model, self.data, cameras)
+            return renderer.render_many(self.model, self.data, cameras, qpos=self._view.qpos)
         except ValueError as exc:  # mujoco names the bad camera; add what is valid
             valid = [self.model.camera(i).name for i in range(self.model.ncam)]
             raise InvalidInput(f"{exc}; valid cameras: {', '.join(valid)}") from None
