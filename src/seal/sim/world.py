@@ -166,6 +166,11 @@ class LiberoWorld:
         return len(self.init_states)
 
     @property
+    def camera_pose(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The agent camera's (pos, quat) when a visual-viewpoint task moved it, else None."""
+        return self._camera_pose
+
+    @property
     def steps(self) -> int:
         return self._steps
 
