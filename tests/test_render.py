@@ -22,3 +22,23 @@ def test_fast_render_mode_is_close_to_stock_and_leaves_physics_alone(world):
         assert fast_model.mesh_facenum.sum() < 0.35 * world.model.mesh_facenum.sum()
     finally:
         fast.close()
+
+
+def test_renders_stay_right_when_another_renderer_is_replaced(world):
+    """Two worlds' renderers in one process; one of them changes size (its renderer is closed and
+    rebuilt) while the other's GL context is current. Neither may lose its buffers: the other
+    world draws the same frame as before, and the resized one draws each new state anew."""
+    fast = LiberoWorld(("libero_10", 0), render_mode="fast")
+    try:
+        world.reset(0)
+        fast.reset(0)
+        world.observe()
+        before = fast.observe().agent  # fast's context is the current one now
+        small = [world.render_raw(("agentview",), size=96)["agentview"]]  # closes world's 256 renderer
+        world.step_chunk(np.random.default_rng(4).uniform(-1, 1, (10, 7)))
+        small.append(world.render_raw(("agentview",), size=96)["agentview"])
+        assert np.array_equal(fast.observe().agent, before)
+        assert psnr(small[0], small[1]) is not None and psnr(small[0], small[1]) < 40  # the arm moved
+        assert small[0].std() > 10
+    finally:
+        fast.close()

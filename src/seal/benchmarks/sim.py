@@ -1,4 +1,5 @@
-"""`seal bench sim`: physics step, exact restore, stock vs fast rendering, pool speedup."""
+"""`seal bench sim`: physics step, exact restore, observations against the package's own
+camera path, stock vs fast rendering per resolution, pool speedup."""
 
 from __future__ import annotations
 
@@ -6,7 +7,8 @@ import time
 
 import numpy as np
 
-from seal.sim.observation import AGENT_CAMERA, RENDER_SIZE, to_policy_image
+from seal.sim.observation import AGENT_CAMERA, IMAGE_SIZE, RENDER_SIZE, WRIST_CAMERA, to_policy_image
+from seal.sim.package_path import package_frames
 from seal.sim.pool import EnvPool
 from seal.sim.world import LiberoWorld
 
@@ -20,9 +22,45 @@ def _median_ms(fn, n: int) -> float:
     return round(1000 * float(np.median(times)), 3)
 
 
-def psnr(a: np.ndarray, b: np.ndarray) -> float:
+def psnr(a: np.ndarray, b: np.ndarray) -> float | None:
+    """PSNR in dB; None for identical images (infinite PSNR has no JSON spelling)."""
     mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
-    return float("inf") if mse == 0 else round(10 * np.log10(255.0**2 / mse), 2)
+    return None if mse == 0 else round(10 * np.log10(255.0**2 / mse), 2)
+
+
+def ssim(a: np.ndarray, b: np.ndarray) -> float:
+    """Mean SSIM of two uint8 RGB images (Gaussian window, sigma 1.5, as Wang et al. 2004)."""
+    from scipy.ndimage import gaussian_filter
+
+    x, y = a.astype(np.float64), b.astype(np.float64)
+    blur = lambda im: gaussian_filter(im, sigma=(1.5, 1.5, 0), truncate=3.5)  # noqa: E731
+    mx, my = blur(x), blur(y)
+    vx, vy, cov = blur(x * x) - mx * mx, blur(y * y) - my * my, blur(x * y) - mx * my
+    c1, c2 = (0.01 * 255) ** 2, (0.03 * 255) ** 2
+    s = ((2 * mx * my + c1) * (2 * cov + c2)) / ((mx * mx + my * my + c1) * (vx + vy + c2))
+    return round(float(s.mean()), 4)
+
+
+def _consumed(world: LiberoWorld, px: int) -> np.ndarray:
+    """The agent view as a consumer at ``px`` gets it: openpi's 256 -> 224 path at 224, else a
+    render at that size."""
+    if px == IMAGE_SIZE:
+        return to_policy_image(world.render_raw((AGENT_CAMERA,))[AGENT_CAMERA])
+    return world.render_raw((AGENT_CAMERA,), size=px)[AGENT_CAMERA]
+
+
+def _vs_package(world: LiberoWorld) -> dict:
+    """Our episode-0 observation against the package's, same state, both cameras at 224."""
+    world.reset(0)
+    ours = world.observe()
+    theirs = package_frames(world.task, 0, camera_pose=world.camera_pose)[0]
+    out = {}
+    for view in ("agent", "wrist"):
+        a, b = getattr(ours, view), getattr(theirs, view)
+        out[f"obs_psnr_vs_package_{view}"] = psnr(a, b)
+        out[f"obs_max_abs_diff_vs_package_{view}"] = int(np.abs(a.astype(np.int16) - b).max())
+    out["obs_state_max_abs_diff_vs_package"] = float(np.abs(ours.state - theirs.state).max())
+    return out
 
 
 def _states(world: LiberoWorld, rng, n: int) -> list:
@@ -34,6 +72,9 @@ def _states(world: LiberoWorld, rng, n: int) -> list:
         world.step_chunk(rng.uniform(-1, 1, (20, 7)))
         out.append(world.snapshot())
     return out
+
+
+RENDER_SIZES = (64, 96, 128, IMAGE_SIZE)  # policy resolutions to choose from, and the verifier's
 
 
 def run(args) -> dict:
@@ -58,19 +99,30 @@ def run(args) -> dict:
     world.step_chunk(actions[:50])
     diff = float(np.abs(world.snapshot().physics - reference.physics).max())
 
-    # rendering: the same states drawn by the stock and the fast render model
+    # observations: the same episode start through the package's own camera path
+    package = _vs_package(world)
+
+    # rendering: the same states drawn by the stock and the fast render model, at each size a
+    # consumer uses (policy 64-128, verifier 224), compared at that size
     fast = LiberoWorld(task, render_mode="fast")
     states = _states(world, rng, 3)
-    raw_psnr, policy_psnr = [], []
-    for s in states:
-        world.restore(s)
-        fast.restore(s)
-        a = world.render_raw((AGENT_CAMERA,))[AGENT_CAMERA]
-        b = fast.render_raw((AGENT_CAMERA,))[AGENT_CAMERA]
-        raw_psnr.append(psnr(a, b))
-        policy_psnr.append(psnr(to_policy_image(a), to_policy_image(b)))
+    sizes = {}
+    for px in RENDER_SIZES:
+        quality = []
+        for s in states:
+            world.restore(s)
+            fast.restore(s)
+            a, b = _consumed(world, px), _consumed(fast, px)
+            quality.append((psnr(a, b), ssim(a, b)))
+        sizes[f"render_ms_stock_{px}"] = _median_ms(lambda: _consumed(world, px), 10)
+        sizes[f"render_ms_fast_{px}"] = _median_ms(lambda: _consumed(fast, px), 10)
+        sizes[f"render_psnr_fast_{px}"] = round(float(np.median([q[0] or np.inf for q in quality])), 2)
+        sizes[f"render_ssim_fast_{px}"] = round(float(np.median([q[1] for q in quality])), 4)
+    world.restore(states[0])
+    fast.restore(states[0])
     render_stock = _median_ms(lambda: world.render_raw((AGENT_CAMERA,)), 10)
     render_fast = _median_ms(lambda: fast.render_raw((AGENT_CAMERA,)), 10)
+    render_both = _median_ms(lambda: world.render_raw((AGENT_CAMERA, WRIST_CAMERA)), 5)
     fast.close()
 
     # pool: K envs stepping 5-step chunks, vs the same work in this one process
@@ -97,12 +149,13 @@ def run(args) -> dict:
         "physics_step_ms": physics_ms,
         "restore_ms": restore_ms,
         "restore_max_abs_diff": diff,
+        **package,
         "render_size": RENDER_SIZE,
         "render_ms_stock": render_stock,
         "render_ms_fast": render_fast,
+        "render_ms_stock_both_cameras": render_both,
         "render_fast_speedup": round(render_stock / render_fast, 2),
-        "render_fast_psnr": round(float(np.median(raw_psnr)), 2),
-        "render_fast_psnr_policy_224": round(float(np.median(policy_psnr)), 2),
+        **sizes,
         "pool_k": k,
         "pool_workers": workers,
         "pool_chunk_ms": pool_ms,

@@ -75,4 +75,11 @@ class SceneRenderer:
     def close(self) -> None:
         renderer, self._renderer = getattr(self, "_renderer", None), None
         if renderer is not None:
+            # mujoco's Renderer.close() frees its MjrContext in whichever GL context is current;
+            # with several renderers in a process (a world per render mode, a new size) that is
+            # another renderer's, whose buffers and textures then vanish and whose renders come
+            # back stale. Make ours current first.
+            context = getattr(renderer, "_gl_context", None)
+            if context is not None:
+                context.make_current()
             renderer.close()
