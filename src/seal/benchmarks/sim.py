@@ -84,6 +84,11 @@ def run(args) -> dict:
     world.reset(0)
     actions = rng.uniform(-1, 1, (60, 7))
 
+    # reset: openpi's episode start (fixtures, controller), an init state not used before, settle steps
+    episodes = iter(range(1, world.num_init_states))
+    reset_ms = _median_ms(lambda: world.reset(next(episodes)), 8)
+    world.reset(0)
+
     # physics: one 20 Hz control step (25 MuJoCo substeps), cameras off
     it = iter(actions)
     physics_ms = _median_ms(lambda: world.step(next(it)), 40)
@@ -146,6 +151,7 @@ def run(args) -> dict:
 
     return {
         "task": f"{args.suite}/{args.task}",
+        "reset_ms": reset_ms,
         "physics_step_ms": physics_ms,
         "restore_ms": restore_ms,
         "restore_max_abs_diff": diff,
