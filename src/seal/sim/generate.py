@@ -13,7 +13,6 @@ Stored file: ``seal/data/init_states/<suite>/<problem>.npz`` with ``states`` (n,
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import os
 import tempfile
@@ -24,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from seal.errors import InvalidInput, SimulationError
+from seal.sim.layout import NumpyGlobalRNG
 from seal.sim.suites import (
     DERIVED_SUITES,
     TaskSpec,
@@ -97,18 +97,6 @@ def task_seed(spec: TaskSpec) -> int:
     return zlib.crc32(spec.key.encode()) * 1000
 
 
-@contextlib.contextmanager
-def _numpy_global_seed(seed: int):
-    # LIBERO's region samplers draw from np.random directly; seed it for this draw only and
-    # give the caller's generator state back afterwards.
-    saved = np.random.get_state()
-    np.random.seed(seed % 2**32)
-    try:
-        yield
-    finally:
-        np.random.set_state(saved)
-
-
 def draw_state(world, seed: int) -> np.ndarray | None:
     """LIBERO's placement of every object for ``seed``, as a flattened MuJoCo state (None when
     the sampler finds no collision-free placement)."""
@@ -119,7 +107,7 @@ def draw_state(world, seed: int) -> np.ndarray | None:
     # carries. Every world keeps the fixture poses of its build, so put them back after the draw.
     body_pos, body_quat = model.body_pos.copy(), model.body_quat.copy()
     try:
-        with _numpy_global_seed(seed):
+        with NumpyGlobalRNG(seed % 2**32):
             env.reset()
         return np.array(env.sim.get_state().flatten(), dtype=np.float64)
     except RandomizationError:

@@ -68,8 +68,9 @@ def write_fixtures(env, fixtures: np.ndarray) -> None:
     model.body_quat[ids] = fixtures[:, 3:]
 
 
-class _GlobalRNG:
-    """Run LIBERO's sampling on a numpy global RNG state of our own, leaving the caller's as it was."""
+class NumpyGlobalRNG:
+    """LIBERO's samplers draw from numpy's global RNG: run them on a state of our own, seeded once
+    and carried from one ``with`` block to the next, and give the caller's state back after each."""
 
     def __init__(self, seed: int):
         saved = np.random.get_state()
@@ -98,7 +99,7 @@ class OpenpiStarts:
         self._env = env
         self._samplers = list(env.object_property_initializers)
         self._copies = 1  # the env's constructor loaded the scene once
-        self._rng = _GlobalRNG(seed)
+        self._rng = NumpyGlobalRNG(seed)
         self._starts: list[EpisodeStart] = []
 
     def __getitem__(self, episode: int) -> EpisodeStart:

@@ -96,7 +96,7 @@ def _build_robosuite_env(task: TaskSpec):
     # apart from the caller's) give the build's own layout, which the derived suites' generated
     # init states and the viewpoint cameras were made with; `reset(i)` then moves the fixtures
     # to where openpi's evaluation has them for episode i (seal.sim.layout).
-    with layout._GlobalRNG(layout.OPENPI_SEED):
+    with layout.NumpyGlobalRNG(layout.OPENPI_SEED):
         env.reset()
     return env.env
 
