@@ -138,7 +138,7 @@ def _cmd_train(args) -> int:
 
 
 def _cmd_suites(args) -> int:
-    from seal.sim import suite_tools
+    from seal import suite_tools
 
     return suite_tools.main(args)
 
