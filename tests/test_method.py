@@ -4,7 +4,6 @@ registries at the seams; the CLI's handling of bad values."""
 from __future__ import annotations
 
 import json
-import sqlite3
 from pathlib import Path
 
 import pytest
@@ -112,12 +111,11 @@ def test_run_and_eval_accept_the_same_method_options():
 BOOK = ("libero_10", 5)  # two sub-plans, ~90 steps: the quickest LIBERO-10 task
 
 
-def _rows(db: Path) -> list[dict]:
-    con = sqlite3.connect(db)
-    con.row_factory = sqlite3.Row
-    rows = [dict(r) for r in con.execute("SELECT * FROM trials")]
-    con.close()
-    return rows
+def _rows(db: Path) -> list:
+    from seal.eval.store import ResultStore
+
+    with ResultStore(db, create=False) as store:
+        return store.rows()
 
 
 def _decisions(trace: Path) -> list[tuple]:
@@ -142,11 +140,11 @@ def test_run_and_eval_give_the_same_trial(tmp_path, capsys):
     assert main(["eval", "--suite", suite, "--tasks", str(task), "--trials", "1", "--methods", "seal", "--db", str(db),
                  "--out", str(tmp_path / "eval"), "--video", "none", "--no-grids", *options]) == 0
     (row,) = _rows(db)
-    assert row["status"] == "ok" and row["seed"] == seed and row["init_index"] == 0
-    assert (bool(row["success"]), row["steps"], row["rounds"], row["verifier_calls"], row["fallbacks"]) == \
+    assert row.status == "ok" and row.seed == seed and row.init_index == 0
+    assert (row.success, row.steps, row.rounds, row.verifier_calls, row.fallbacks) == \
         (ran["success"], ran["steps"], ran["rounds"], ran["verifier_calls"], ran["fallbacks"])
-    assert json.loads(row["subplans"]) == ran["subplans"] and json.loads(row["goal_status"]) == ran["goal_status"]
-    assert _decisions(Path(row["trace_path"])) == _decisions(Path(ran["trace"]))
+    assert row.subplans == ran["subplans"] and row.goal_status == ran["goal_status"]
+    assert _decisions(Path(row.trace_path)) == _decisions(Path(ran["trace"]))
     assert ran["steps"] > 0 and any(d[0] == "commit" for d in _decisions(Path(ran["trace"])))
 
 
@@ -160,8 +158,8 @@ def test_eval_with_a_physics_mismatch(tmp_path):
                  "--k", "2", "--mismatch", "1.3,0.8,1.2", "--max-steps", str(SHORT), "--db", str(db), "--video", "none",
                  "--out", str(tmp_path / "runs")]) == 0
     rows = _rows(db)
-    assert sorted(r["method"] for r in rows) == ["base[mismatch=1.3/0.8/1.2]", "seal[k=2,mismatch=1.3/0.8/1.2]"]
-    assert all(r["status"] == "ok" and r["steps"] > 0 for r in rows), [r["error"] for r in rows]
+    assert sorted(r.method for r in rows) == ["base[mismatch=1.3/0.8/1.2]", "seal[k=2,mismatch=1.3/0.8/1.2]"]
+    assert all(r.status == "ok" and r.steps > 0 for r in rows), [r.error for r in rows]
     # The worker's pool is built with the mismatch (and a plain method gets a plain pool).
     (spec,) = expand(parse_methods("base", mismatch=(1.3, 0.8, 1.2)), [BOOK[0]], [BOOK[1]], trials=1)
     runner = TrialRunner(RunOptions(out_dir=str(tmp_path / "direct"), video="none", max_steps=10))
@@ -185,5 +183,5 @@ def test_eval_with_a_remote_policy(tmp_path):
                      "--db", str(db), "--video", "none", "--no-grids", "--out", str(tmp_path / "runs")])
     assert code == 0
     (row,) = _rows(db)
-    assert row["status"] == "ok", row["error"]
-    assert row["method"] == "seal[k=2,policy=remote]" and row["steps"] > 0 and row["verifier_calls"] > 0
+    assert row.status == "ok", row.error
+    assert row.method == "seal[k=2,policy=remote]" and row.steps > 0 and row.verifier_calls > 0

@@ -7,6 +7,7 @@ import asyncio
 
 import numpy as np
 
+from seal.errors import InvalidInput
 from seal.sim.pool import EnvPool
 from seal.sim.suites import get_task, parse_task_ids
 from seal.steer.build import build_episode
@@ -52,7 +53,10 @@ def run_steer(args) -> dict:
 
 
 def run_runtime(args) -> dict:
-    ks = [int(k) for k in (args.ks or "1,2,4,8,10").split(",")]
+    try:
+        ks = [int(k) for k in (args.ks or "1,2,4,8,10").split(",")]
+    except ValueError:
+        raise InvalidInput(f"--ks must be comma-separated K values, got {args.ks!r}") from None
     task = _tasks(args, "5")[0]
     spec = get_task(args.suite, task)
     rows = []

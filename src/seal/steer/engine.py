@@ -349,7 +349,7 @@ class Steerer:
     # ---- small helpers ------------------------------------------------------------------------
     @property
     def scorer_needs_images(self) -> bool:
-        return bool(getattr(self.scorer, "needs_images", True))
+        return bool(self.scorer.needs_images)  # declared by the ChunkScorer protocol
 
     def _observe(self, slot: int, *, images: bool, atoms) -> Observation:
         return self.pool.observe([slot], images=images, privileged_atoms=atoms)[0]
