@@ -103,7 +103,7 @@ class TrialRunner:
 
         m = spec.method
         pool = self._pool_for(spec, m.effective_k)
-        scorer = self._scorer(m.value_ckpt) if m.method == "value" else None
+        scorer = self._scorer(m.value_ckpt) if m.scores else None
         with build_episode(m, pool.task, seed=spec.seed, out_dir=out, pool=pool, max_steps=self.options.max_steps,
                            grids=self.options.grids and m.method != "base", scorer=scorer) as episode:
             result = episode.run(spec.init_index)

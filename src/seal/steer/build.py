@@ -83,7 +83,7 @@ def build_episode(spec: MethodSpec, task, *, seed: int = 0, out_dir: str | Path 
                                                physics=spec.physics()))
         if verifier is None:
             verifier = verifier_for(spec, seed=seed)
-        if scorer is None and spec.method == "value":
+        if scorer is None and spec.scores:
             scorer = make_scorer("value", spec.value_ckpt)
         if policy is None:
             policy = make_policy(spec.policy, spec, task, seed=seed)

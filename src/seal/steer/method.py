@@ -21,7 +21,7 @@ from functools import lru_cache
 from pathlib import Path
 
 from seal.errors import InvalidInput
-from seal.steer.selection import METHODS  # one per candidate-selection object
+from seal.steer.selection import METHODS, SELECTIONS  # one per candidate-selection object
 
 KNOBS = ("clean", "misaligned")
 MODES = ("sync", "replay")
@@ -117,7 +117,13 @@ class MethodSpec:
 
     @property
     def verifies(self) -> bool:
-        return self.method == "seal"
+        """Its candidates go to a verifier (asked of the method's selection object)."""
+        return SELECTIONS[self.method].verifies
+
+    @property
+    def scores(self) -> bool:
+        """It ranks chunks with a scorer loaded from ``value_ckpt``."""
+        return SELECTIONS[self.method].scores
 
     # ---- identity --------------------------------------------------------------------------------
     def canonical(self) -> dict:

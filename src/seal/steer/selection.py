@@ -80,6 +80,7 @@ class Selection:
 
     name = "base"
     verifies = False  # finished candidates go to the verifier
+    scores = False  # chunks are ranked by a ChunkScorer (the episode builder loads one)
 
     def k(self, config: "SteerConfig") -> int:
         return 1
@@ -157,6 +158,7 @@ class ValueSelection(Selection):
     """V-GPS: sample K chunks from one state, execute the one the scorer rates best, repeat."""
 
     name = "value"
+    scores = True
 
     def k(self, config):
         return config.k
