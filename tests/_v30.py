@@ -15,7 +15,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from seal.datasets import Episode
-from seal.datasets.lerobot import AGENT_VIDEO_KEY, WRIST_VIDEO_KEY, _encode_video
+from seal.datasets.lerobot import AGENT_VIDEO_KEY, WRIST_VIDEO_KEY, encode_video
 
 
 def write_v30(root: Path, episodes: list[Episode], fps: int = 20,
@@ -36,7 +36,7 @@ def write_v30(root: Path, episodes: list[Episode], fps: int = 20,
         "task_index": pa.array(np.repeat(np.arange(len(lengths)), lengths)),
     }), data)
     for key, attr in ((AGENT_VIDEO_KEY, "agent_images"), (WRIST_VIDEO_KEY, "wrist_images")):
-        _encode_video(np.concatenate([getattr(e, attr) for e in episodes]),
+        encode_video(np.concatenate([getattr(e, attr) for e in episodes]),
                       root / f"videos/{key}/chunk-000/file-000.mp4", fps)
     rows = []
     for i, e in enumerate(episodes):

@@ -164,7 +164,7 @@ def test_first_frame_renders_in_each_suite(world, composition_world):
 @pytest.mark.slow
 @pytest.mark.parametrize("suite", DERIVED_SUITES)
 def test_every_task_of_every_derived_suite_checks_out(suite):
-    from seal.sim.suite_tools import check_task
+    from seal.suite_tools import check_task
 
     rows = [check_task(spec, inits=5) for spec in list_tasks(suite)]
     assert [r["task"] for r in rows if not r["ok"]] == [], [r["problems"] for r in rows if not r["ok"]]

@@ -14,59 +14,22 @@ from seal.errors import InvalidInput, SealError
 def _cmd_run(args) -> int:
     from rich.console import Console
 
-    from seal.policies.expert.policy import FailureKnobs
-    from seal.sim.world import PhysicsMismatch
-    from seal.steer.engine import SteerConfig
+    from seal.steer.events import ProgressReporter
+    from seal.steer.method import MethodSpec
     from seal.steer.run import run_steered
-    from seal.verify import make_verifier
 
-    config = SteerConfig(method=args.method, k=args.k, rounds=args.rounds, mode=args.mode,
-                         max_steps=args.max_steps, seed=args.seed, check_every=args.check_every,
-                         value_goal=args.value_goal)
-    scorer = None
-    if args.method == "value":
-        if not args.value_ckpt:
-            raise InvalidInput("--method value needs --value-ckpt (a `seal train value` run directory)")
-        from seal.train.vgps import VGPSScorer
-
-        scorer = VGPSScorer.load(args.value_ckpt)
-    verifier = None if args.method != "seal" else make_verifier(
-        args.verifier, model=args.model, base_url=args.base_url,
-        false_positive=args.false_positive, false_negative=args.false_negative, seed=args.seed)
-    mismatch = None
-    if args.mismatch:
-        f, m, d = (float(x) for x in args.mismatch.split(","))
-        mismatch = PhysicsMismatch(friction=f, mass=m, damping=d)
-    policy = _remote_policy(args) if args.policy == "remote" else None
+    spec = MethodSpec(method=args.method, **_method_settings(args))
     console = Console(stderr=True)
-    try:
-        with console.status(f"{args.method} on {args.suite}/{args.task} init {args.init} (K={config.effective_k})"):
-            result = run_steered(args.suite, args.task, args.init, Path(args.out), config=config, verifier=verifier,
-                                 knobs=FailureKnobs.named(args.knobs), video=not args.no_video,
-                                 grids=not args.no_grids, mismatch=mismatch, render_mode=args.render, policy=policy,
-                                 scorer=scorer)
-    finally:
-        if policy is not None:
-            policy.close()
+    title = f"{spec.method} on {args.suite}/{args.task} init {args.init} (K={spec.effective_k})"
+    with console.status(title) as status:
+        progress = ProgressReporter(lambda text: status.update(f"{title}: {text}"))
+        result = run_steered(spec, args.suite, args.task, args.init, Path(args.out), seed=args.seed,
+                             max_steps=args.max_steps, video=not args.no_video, grids=not args.no_grids,
+                             subscribers=(progress,))
     keys = ("task", "method", "init_index", "success", "sim_error", "steps", "wall_s", "subplans", "goal_status",
             "verifier_calls", "rounds", "fallbacks", "divergence", "timing", "trace")
     print(json.dumps({k: getattr(result, k) for k in keys}, indent=2))
     return 0
-
-
-def _remote_policy(args):
-    """`seal run --policy remote`: an openpi-protocol server, plus a planner if it does not reason."""
-    from seal.serving.client import ClientConfig, OpenpiPolicy
-    from seal.serving.planners import make_planner
-    from seal.sim.suites import get_task
-
-    spec = get_task(args.suite, args.task)
-    planner = None if not args.planner else make_planner(args.planner, spec=spec, annotations=args.annotations,
-                                                         model=args.planner_model, base_url=args.base_url)
-    config = ClientConfig(host=args.host, port=args.port, transport=args.transport,
-                          request_timeout_s=args.request_timeout, prompt=args.prompt,
-                          api_key=os.environ.get("OPENPI_API_KEY") or None)  # secrets: environment only
-    return OpenpiPolicy(config, task=spec.key, planner=planner)
 
 
 def _cmd_ground(args) -> int:
@@ -93,9 +56,9 @@ def _cmd_demos(args) -> int:
 
     from seal.demos import record_demos
     from seal.policies.expert.policy import FailureKnobs
-    from seal.sim.suites import task_count
+    from seal.sim.suites import parse_task_ids, task_count
 
-    tasks = None if not args.tasks else [int(t) for t in args.tasks.split(",")]
+    tasks = None if not args.tasks else parse_task_ids(args.suite, args.tasks)
     n_tasks = task_count(args.suite) if tasks is None else len(tasks)
     with Progress() as bar:
         job = bar.add_task(f"recording {args.suite}", total=n_tasks * args.episodes_per_task)
@@ -138,7 +101,7 @@ def _cmd_train(args) -> int:
 
 
 def _cmd_suites(args) -> int:
-    from seal.sim import suite_tools
+    from seal import suite_tools
 
     return suite_tools.main(args)
 
@@ -148,12 +111,14 @@ def _cmd_eval(args) -> int:
 
     from seal.eval.execute import RunOptions
     from seal.eval.runner import run_eval
-    from seal.eval.trials import parse_methods
+    from seal.sim.suites import parse_task_ids
+    from seal.steer.method import parse_methods
 
-    methods = parse_methods(args.methods, k=args.k, rounds=args.rounds, verifier=args.verifier, model=args.model,
-                            knobs=args.knobs)
+    methods = parse_methods(args.methods, **_method_settings(args))
     suites = [s.strip() for s in args.suite.split(",") if s.strip()]
-    tasks = None if not args.tasks else [int(t) for t in args.tasks.split(",")]
+    tasks = None
+    if args.tasks:  # the same ids in every suite: each must have them
+        tasks = [parse_task_ids(suite, args.tasks) for suite in suites][0]
     out = args.out or str(Path(args.db).with_suffix("")) + "_runs"
     options = RunOptions(out_dir=out, video=args.video, grids=not args.no_grids, pool_workers=args.pool_workers,
                          max_steps=args.max_steps)
@@ -258,54 +223,87 @@ def _cmd_bench(args) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="seal", description=__doc__)
-    sub = p.add_subparsers(dest="command", required=True)
+# ---- the parser: one _add_<command> per sub-command --------------------------------------------
+class _Parser(argparse.ArgumentParser):
+    """Every bad value ends the same way: ``seal: error: ...`` on stderr and exit status 2."""
 
+    def error(self, message: str):
+        self.print_usage(sys.stderr)
+        self.exit(2, f"seal: error: {message}\n")
+
+
+def _mismatch(text: str):
+    from seal.steer.method import parse_mismatch
+
+    try:
+        return parse_mismatch(text)
+    except InvalidInput as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+# (flag, MethodSpec field, type, help): the options of a method, shared by `seal run` and `seal eval`.
+# Defaults are MethodSpec's own (None here = not given), so both commands mean the same by them.
+_METHOD_OPTIONS = (
+    ("--k", int, "candidates per sub-plan (default 10)"),
+    ("--rounds", int, "sampling rounds before the fallback (default 2)"),
+    ("--subplan-budget", int, "control steps one candidate may spend on one sub-plan (default 200)"),
+    ("--mode", str, "sync (default) | replay: execute winners in a separate evaluation world"),
+    ("--mismatch", _mismatch, "prediction physics scales 'friction,mass,damping', e.g. 1.3,0.8,1.2"),
+    ("--render", str, "render model: stock (default) | fast"),
+    ("--check-every", int, "policies without <think>: steps between mid-rollout verifier checks (default 20)"),
+    ("--verifier", str, "oracle (default) | openai | gemini | noisy"),
+    ("--model", str, "VLM model name (openai/gemini verifiers)"),
+    ("--base-url", str, "OpenAI-compatible server URL for VLM verifier/planner (default: OPENAI_BASE_URL)"),
+    ("--false-positive", float, "noisy verifier: false-positive rate"),
+    ("--false-negative", float, "noisy verifier: false-negative rate"),
+    ("--value-ckpt", str, "value: checkpoint file or run directory (`seal train value`)"),
+    ("--value-goal", str, "value: condition the Q-function on the task (V-GPS, default) or the sub-plan"),
+    ("--policy", str, "scripted (default) | remote: an openpi-protocol server at --host/--port (docs/serving.md)"),
+    ("--knobs", str, "scripted expert's failure setting: clean | misaligned (default)"),
+    ("--host", str, "remote policy server host (or a ws:// URI; default 127.0.0.1)"),
+    ("--port", int, "remote policy server port (default 8000)"),
+    ("--transport", str, "remote: how K observations are sent: auto | batched | concurrent | sequential"),
+    ("--request-timeout", float, "remote: seconds to wait for one reply (default 30)"),
+    ("--planner", str, "sub-plans for a remote server that does not reason (plain pi0): annotations | vlm"),
+    ("--annotations", str, "annotations planner: JSON file or LeRobot dataset dir (default: the task's decomposition)"),
+    ("--planner-model", str, "vlm planner: model name (default gpt-4o)"),
+    ("--prompt", str, "remote server without reasoning: prompt with the task (default) or the current sub-plan"),
+)
+
+
+def _add_method_options(p: argparse.ArgumentParser) -> None:
+    group = p.add_argument_group("method options (seal.steer.method.MethodSpec)")
+    for flag, kind, help_text in _METHOD_OPTIONS:
+        group.add_argument(flag, type=kind, default=None, help=help_text)
+
+
+def _method_settings(args) -> dict:
+    """The method options given on the command line, as MethodSpec fields."""
+    out = {}
+    for flag, _, _ in _METHOD_OPTIONS:
+        name = flag[2:].replace("-", "_")
+        if getattr(args, name) is not None:
+            out[name] = getattr(args, name)
+    return out
+
+
+def _add_run(sub) -> None:
     run = sub.add_parser("run", help="one steered LIBERO episode: video, trace, candidate grids, summary")
     run.add_argument("--suite", default="libero_10")
     run.add_argument("--task", type=int, default=0)
     run.add_argument("--init", type=int, default=0, help="official init state index")
     run.add_argument("--method", default="seal", choices=["base", "random", "value", "seal"],
                      help="value: V-GPS re-ranking with a `seal train value` checkpoint (--value-ckpt)")
-    run.add_argument("--value-ckpt", default=None, help="value: checkpoint file or run directory")
-    run.add_argument("--value-goal", default="task", choices=["task", "subplan"],
-                     help="value: condition the Q-function on the task (V-GPS) or the current sub-plan")
-    run.add_argument("--k", type=int, default=10, help="candidates per sub-plan")
-    run.add_argument("--rounds", type=int, default=2, help="sampling rounds before the fallback")
-    run.add_argument("--verifier", default="oracle", help="oracle | openai | gemini")
-    run.add_argument("--model", default=None, help="VLM model name (openai/gemini verifiers)")
-    run.add_argument("--base-url", default=None, help="OpenAI-compatible server URL (default: OPENAI_BASE_URL)")
-    run.add_argument("--false-positive", type=float, default=0.0, help="noisy verifier: false-positive rate")
-    run.add_argument("--false-negative", type=float, default=0.0, help="noisy verifier: false-negative rate")
-    run.add_argument("--mode", default="sync", choices=["sync", "replay"])
-    run.add_argument("--mismatch", default="", help="prediction physics scales 'friction,mass,damping', e.g. 1.3,0.8,1.2")
-    run.add_argument("--knobs", default="misaligned", choices=["clean", "misaligned"],
-                     help="the scripted expert's failure setting")
     run.add_argument("--max-steps", type=int, default=None, help="default: the suite's limit")
     run.add_argument("--seed", type=int, default=0)
-    run.add_argument("--render", default="stock", choices=["stock", "fast"])
     run.add_argument("--no-video", action="store_true")
     run.add_argument("--no-grids", action="store_true")
     run.add_argument("--out", default="runs/demo")
-    run.add_argument("--policy", default="scripted", choices=["scripted", "remote"],
-                     help="remote: an openpi-protocol policy server at --host/--port (docs/serving.md)")
-    run.add_argument("--host", default="127.0.0.1", help="remote policy server host (or a ws:// URI)")
-    run.add_argument("--port", type=int, default=8000, help="remote policy server port")
-    run.add_argument("--transport", default="auto", choices=["auto", "batched", "concurrent", "sequential"],
-                     help="remote: how K observations are sent")
-    run.add_argument("--request-timeout", type=float, default=30.0, help="remote: seconds to wait for one reply")
-    run.add_argument("--planner", default="", choices=["", "annotations", "vlm"],
-                     help="sub-plans for a remote server that does not reason (plain pi0)")
-    run.add_argument("--annotations", default=None,
-                     help="annotations planner: JSON file or LeRobot dataset dir (default: the task's decomposition)")
-    run.add_argument("--planner-model", default=None, help="vlm planner: model name (default gpt-4o)")
-    run.add_argument("--prompt", default="task", choices=["task", "subplan"],
-                     help="remote server without reasoning: prompt with the task or the current sub-plan")
-    run.add_argument("--check-every", type=int, default=20,
-                     help="policies without <think>: steps between mid-rollout verifier checks")
+    _add_method_options(run)
     run.set_defaults(func=_cmd_run)
 
+
+def _add_ground(sub) -> None:
     gr = sub.add_parser("ground", help="the goal atoms the oracle verifier checks for a sub-plan text")
     gr.add_argument("text", help='e.g. "place it in the basket"')
     gr.add_argument("--suite", default="libero_10")
@@ -314,6 +312,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="earlier sub-plans, so 'it' can be resolved (default: the expert's plan)")
     gr.set_defaults(func=_cmd_ground)
 
+
+def _add_demos(sub) -> None:
     demos = sub.add_parser("demos", help="scripted-expert demonstrations as a LeRobot dataset")
     demos_sub = demos.add_subparsers(dest="demos_command", required=True)
     rec = demos_sub.add_parser("record", help="record successful expert episodes (resumable)")
@@ -326,6 +326,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="also write failed episodes (meta success=false), e.g. as contrast for value learning")
     rec.set_defaults(func=_cmd_demos)
 
+
+def _add_train(sub) -> None:
     train = sub.add_parser("train", help="learned models; `value`: the V-GPS baseline's IQL Q-function")
     train.add_argument("what", choices=["value"])
     train.add_argument("--dataset", required=True, help="LeRobot dataset (e.g. from `seal demos record --keep-failures`)")
@@ -341,6 +343,8 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--seed", type=int, default=0)
     train.set_defaults(func=_cmd_train)
 
+
+def _add_suites(sub) -> None:
     suites = sub.add_parser("suites", help="evaluation suites: list, contact sheet, generate data, check")
     suites_sub = suites.add_subparsers(dest="suites_command", required=True)
     s_list = suites_sub.add_parser("list", help="suites, task counts, instructions and what each variant changes")
@@ -361,19 +365,17 @@ def build_parser() -> argparse.ArgumentParser:
     s_chk.add_argument("--inits", type=int, default=5, help="init states per task to check (spread over all)")
     suites.set_defaults(func=_cmd_suites)
 
+
+def _add_eval(sub) -> None:
     ev = sub.add_parser("eval", help="methods x suites x tasks x trials into a SQLite results store (resumable)")
     ev.add_argument("--suite", default="libero_10", help="comma-separated suites")
     ev.add_argument("--methods", default="base,seal",
-                    help="comma-separated methods, each optionally with settings: seal:k=5:rounds=1")
+                    help="comma-separated methods, each optionally with settings: seal:k=5:rounds=1 (a mismatch "
+                         "inside an item: seal:mismatch=1.3/0.8/1.2); the method options below apply to all")
     ev.add_argument("--tasks", default="", help="comma-separated task ids (default: all)")
     ev.add_argument("--trials", type=int, default=50, help="trials per task (init state = trial mod #inits)")
     ev.add_argument("--db", required=True, help="results database (created if missing, resumed if present)")
     ev.add_argument("--out", default=None, help="traces/videos directory (default: next to the database)")
-    ev.add_argument("--k", type=int, default=None, help="default K for the methods (10)")
-    ev.add_argument("--rounds", type=int, default=None)
-    ev.add_argument("--verifier", default=None, help="oracle | openai | gemini (default oracle)")
-    ev.add_argument("--model", default=None)
-    ev.add_argument("--knobs", default=None, help="scripted expert setting: clean | misaligned (default)")
     ev.add_argument("--backend", default="local", help="local | ray")
     ev.add_argument("--address", default=None, help="ray: cluster address (default: start a local one)")
     ev.add_argument("--workers", type=int, default=1, help="trials run in parallel")
@@ -381,8 +383,11 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--video", default="failures", choices=["none", "failures", "all"])
     ev.add_argument("--no-grids", action="store_true")
     ev.add_argument("--max-steps", type=int, default=None, help="cap episode length (default: the suite's)")
+    _add_method_options(ev)
     ev.set_defaults(func=_cmd_eval)
 
+
+def _add_report(sub) -> None:
     rep = sub.add_parser("report", help="Markdown/CSV tables, plots and an HTML report from a results database")
     rep.add_argument("db", help="results database written by `seal eval`")
     rep.add_argument("--out", default=None, help="report directory (default: <db without suffix>_report)")
@@ -395,6 +400,8 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--no-episodes", action="store_true", help="skip the per-episode pages")
     rep.set_defaults(func=_cmd_report)
 
+
+def _add_serve(sub) -> None:
     serve = sub.add_parser("serve", help="serve a SEAL policy over openpi's websocket protocol (docs/serving.md)")
     serve.add_argument("--policy", default="scripted", choices=["scripted"])
     serve.add_argument("--knobs", default="misaligned", choices=["clean", "misaligned"])
@@ -409,6 +416,8 @@ def build_parser() -> argparse.ArgumentParser:
                        help="refuse handshakes without 'Authorization: Api-Key $OPENPI_API_KEY' (/healthz stays open)")
     serve.set_defaults(func=_cmd_serve)
 
+
+def _add_annotate(sub) -> None:
     ann = sub.add_parser("annotate", help="reasoning labels for a LeRobot dataset (resumable; prints a JSON summary)")
     ann.add_argument("dataset", help="LeRobot dataset directory (v2.1 or v3.0 layout)")
     ann.add_argument("--backend", required=True, choices=["gemini", "openai", "offline"])
@@ -428,6 +437,8 @@ def build_parser() -> argparse.ArgumentParser:
     ann.add_argument("--retry-failed", action="store_true", help="also redo episodes that failed before")
     ann.set_defaults(func=_cmd_annotate)
 
+
+def _add_bench(sub) -> None:
     bench = sub.add_parser("bench", help="benchmarks; each prints one JSON object")
     bench.add_argument("what", choices=["sim", "expert", "steer", "runtime", "eval", "serve", "annotate",
                                                        "value"])
@@ -451,6 +462,14 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--k", type=int, default=10)
     bench.add_argument("--workers", type=int, default=None)
     bench.set_defaults(func=_cmd_bench)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="seal", description=__doc__)
+    sub = p.add_subparsers(dest="command", required=True)
+    for add in (_add_run, _add_ground, _add_demos, _add_train, _add_suites, _add_eval, _add_report, _add_serve,
+                _add_annotate, _add_bench):
+        add(sub)
     return p
 
 

@@ -40,29 +40,25 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from seal.annotate.parse import Annotation, AnswerError, parse_answer
+from seal.annotate.base import BACKENDS, DEFAULT_MODELS, Annotator, AnnotatorResult, EpisodeInput  # noqa: F401
+from seal.annotate.parse import AnswerError, parse_answer
 from seal.annotate.prompt import PROMPT_VERSION, build_prompt, frame_label, retry_message
-from seal.annotate.video import FrameMap
 from seal.errors import InvalidInput, SealError
 
 # Shared with the VLM verifier so both speak to the SDKs, price calls and guard keys the same way.
-from seal.verify.vlm import (
+from seal.vlm import (
     gemini_is_transient,
     openai_is_transient,
     PRICES_PER_MTOK,
-    VerdictCache,
-    _require_key,
-    _require_sdk,
-    _Secrets,
+    ResponseCache,
+    require_key,
+    require_sdk,
+    Secrets,
     cost_usd,
     encode_image,
 )
 
 log = logging.getLogger(__name__)
-
-BACKENDS = ("gemini", "openai", "offline")
-DEFAULT_MODELS = {"gemini": "gemini-2.5-pro", "openai": "gpt-4o", "offline": "expert-ground-truth"}
-
 
 class AnnotatorCallError(SealError, RuntimeError):
     """The model server refused the request in a way retrying cannot fix (key, model, URL)."""
@@ -74,51 +70,6 @@ class _Unavailable(Exception):
     def __init__(self, error: str, attempts: int):
         super().__init__(error)
         self.error, self.attempts = error, attempts
-
-
-@dataclass
-class EpisodeInput:
-    """What an annotator gets for one episode."""
-
-    episode: int
-    instruction: str
-    frame_map: FrameMap
-    clip: np.ndarray | None = None  # (n, H, W, 3) uint8 at 10 fps; None for the offline annotator
-    clip_path: Path | None = None  # the same clip as mp4 (what Gemini uploads)
-    truth_plans: list[str] | None = None  # the expert's sub-plans, when the dataset has them
-    truth_frames: list[int] | None = None  # dataset frame where each first held, -1 never
-
-
-@dataclass
-class AnnotatorResult:
-    status: str  # "ok" | "failed"
-    annotation: Annotation | None = None
-    raw: list[str] = field(default_factory=list)  # every reply, in order
-    error: str = ""
-    calls: list[dict] = field(default_factory=list)  # one log row per wire call
-    cached: bool = False
-
-    @property
-    def input_tokens(self) -> int:
-        return sum(c.get("input_tokens", 0) for c in self.calls)
-
-    @property
-    def output_tokens(self) -> int:
-        return sum(c.get("output_tokens", 0) for c in self.calls)
-
-    @property
-    def cost_usd(self) -> float:
-        return sum(c.get("cost_usd", 0.0) for c in self.calls)
-
-
-class Annotator(Protocol):
-    backend: str
-    model: str
-    needs_clip: bool  # whether EpisodeInput.clip / clip_path must be filled (decode video)
-
-    async def annotate(self, job: EpisodeInput) -> AnnotatorResult: ...
-
-    async def aclose(self) -> None: ...
 
 
 # --------------------------------------------------------------------------- config
@@ -341,15 +292,15 @@ class VLMAnnotator:
 
     def __init__(self, config: AnnotatorConfig, api_key: str | None = None, prices: dict | None = None):
         config.validate()
-        _require_sdk(config.backend)
-        _require_key(config.backend, api_key)
+        require_sdk(config.backend)
+        require_key(config.backend, api_key)
         self.config = config
         self.backend, self.model = config.backend, config.model
         self.prices = {**PRICES_PER_MTOK, **(prices or {})}
-        self._secrets = _Secrets(config.backend, api_key)
+        self._secrets = Secrets(config.backend, api_key)
         self._new_chat = lambda: _CHATS[config.backend](config, api_key)  # the key stays in this closure
         self._chats: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-        self._cache = VerdictCache(config.cache_dir) if config.cache_dir is not None else None
+        self._cache = ResponseCache(config.cache_dir) if config.cache_dir is not None else None
 
     def __repr__(self) -> str:
         return f"VLMAnnotator({self.config!r})"

@@ -20,7 +20,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from seal.annotate.pipeline import INFO, read_annotations
-from seal.datasets.lerobot import ACTION_KEY, _fixed_list_to_numpy, open_dataset
+from seal.datasets.lerobot import ACTION_KEY, fixed_list_to_numpy, open_dataset
 from seal.errors import InvalidInput
 
 
@@ -56,7 +56,7 @@ class AnnotatedDataset:
         if not 0 <= frame < table.num_rows:
             raise InvalidInput(f"frame {frame} is outside episode {episode} (0..{table.num_rows - 1})")
         row = table.slice(frame, 1).to_pylist()[0]
-        actions = _fixed_list_to_numpy(self.source.frames(episode).column(ACTION_KEY))
+        actions = fixed_list_to_numpy(self.source.frames(episode).column(ACTION_KEY))
         return {
             "episode_index": episode,
             "frame_index": frame,

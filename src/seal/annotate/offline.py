@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 
-from seal.annotate.backends import DEFAULT_MODELS, AnnotatorResult, EpisodeInput
+from seal.annotate.base import DEFAULT_MODELS, AnnotatorResult, EpisodeInput
 from seal.annotate.parse import AnswerError, parse_answer
 
 

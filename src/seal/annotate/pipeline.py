@@ -39,7 +39,7 @@ from seal.annotate.align import (
     chunk_labels,
     training_sequences,
 )
-from seal.annotate.backends import Annotator, AnnotatorResult, EpisodeInput
+from seal.annotate.base import Annotator, AnnotatorResult, EpisodeInput
 from seal.annotate.video import (
     VIDEO_FPS,
     FrameMap,
@@ -50,7 +50,7 @@ from seal.annotate.video import (
     resample,
     write_clip,
 )
-from seal.datasets.lerobot import LeRobotReader, _read_jsonl, _write_jsonl_atomic, open_dataset
+from seal.datasets.lerobot import LeRobotReader, read_jsonl, write_jsonl_atomic, open_dataset
 from seal.errors import InvalidInput
 from seal.policies.base import ACTION_HORIZON
 
@@ -111,7 +111,7 @@ def parse_episode_list(text: str, n: int) -> list[int]:
 
 def read_annotations(out: Path) -> dict[int, dict]:
     """The committed record of each episode (the last line wins; a torn last line is ignored)."""
-    records, _ = _read_jsonl(Path(out) / ANNOTATIONS)
+    records, _ = read_jsonl(Path(out) / ANNOTATIONS)
     return {int(r["episode_index"]): r for r in records}
 
 
@@ -131,9 +131,9 @@ class _OutDir:
             raise InvalidInput(f"{self.root} is being written by another `seal annotate` run") from None
         try:
             self._check_or_write_info(info)
-            records, torn = _read_jsonl(self.root / ANNOTATIONS)
+            records, torn = read_jsonl(self.root / ANNOTATIONS)
             if torn:  # a crash mid-append: that episode simply runs again
-                _write_jsonl_atomic(self.root / ANNOTATIONS, records)
+                write_jsonl_atomic(self.root / ANNOTATIONS, records)
             self.records = records
         except BaseException:
             self.close()
@@ -158,7 +158,7 @@ class _OutDir:
     def drop_failed(self, episodes: set[int]) -> None:
         kept = [r for r in self.records if not (r["status"] != "ok" and r["episode_index"] in episodes)]
         if len(kept) != len(self.records):
-            _write_jsonl_atomic(self.root / ANNOTATIONS, kept)
+            write_jsonl_atomic(self.root / ANNOTATIONS, kept)
             self.records = kept
 
     def commit(self, record: dict, labels: pa.Table | None, calls: list[dict]) -> None:

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from seal.datasets.lerobot import AGENT_VIDEO_KEY, LeRobotReader, _encode_video
+from seal.datasets.lerobot import AGENT_VIDEO_KEY, LeRobotReader, encode_video
 from seal.errors import InvalidInput
 
 VIDEO_FPS = 10  # the rate the annotation prompt talks about (the seed's template uses 10 fps)
@@ -78,7 +78,7 @@ def resample(frames: np.ndarray, frame_map: FrameMap) -> np.ndarray:
 
 def write_clip(frames: np.ndarray, path: Path, fps: int = VIDEO_FPS) -> Path:
     """Encode ``frames`` as an H.264 mp4 (atomically: temp file + rename)."""
-    _encode_video(np.ascontiguousarray(frames), Path(path), fps)
+    encode_video(np.ascontiguousarray(frames), Path(path), fps)
     return Path(path)
 
 

@@ -20,7 +20,8 @@ from pathlib import Path
 from seal.eval.execute import RunOptions
 from seal.eval.runner import run_eval
 from seal.eval.store import ResultStore
-from seal.eval.trials import MethodSpec
+from seal.sim.suites import parse_task_ids
+from seal.steer.method import MethodSpec
 
 
 def _timed_run(db: Path, methods, suite, tasks, trials, options, **kw) -> tuple[float, list]:
@@ -33,7 +34,7 @@ def _timed_run(db: Path, methods, suite, tasks, trials, options, **kw) -> tuple[
 
 def run(args) -> dict:
     suite = args.suite
-    tasks = [int(t) for t in args.tasks.split(",")] if args.tasks else [0]
+    tasks = parse_task_ids(args.suite, args.tasks or "0")
     trials = args.trials if args.trials != 50 else 3  # 50 is `bench`'s shared default; keep this one short
     workers = args.workers or 1
     out: dict = {"suite": suite, "tasks": tasks, "trials_per_task": trials, "workers": workers, "k": args.k}

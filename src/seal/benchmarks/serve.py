@@ -34,18 +34,18 @@ def _interleaved_ms(calls: dict, reps: int) -> dict:
 def run(args) -> dict:
     from rich.console import Console
 
-    from seal.policies.expert.policy import FailureKnobs
+    from seal.policies import make_policy
     from seal.serving import protocol as P
     from seal.serving.client import ClientConfig, OpenpiPolicy
     from seal.serving.server import ServerProcess
     from seal.sim.suites import get_task
     from seal.sim.world import LiberoWorld
-    from seal.steer.run import expert_policy
+    from seal.steer.method import MethodSpec
 
     k, reps = args.k, max(5, min(args.trials, 200))
     spec = get_task(args.suite, args.task)
     console = Console(stderr=True)
-    expert = expert_policy(spec, FailureKnobs.misaligned())
+    expert = make_policy("scripted", MethodSpec(knobs="misaligned"), spec)
     with console.status(f"building {spec.key} for one observation"):
         world = LiberoWorld(spec)
         try:

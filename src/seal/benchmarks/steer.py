@@ -7,11 +7,11 @@ import asyncio
 
 import numpy as np
 
-from seal.policies.expert.policy import FailureKnobs
+from seal.errors import InvalidInput
 from seal.sim.pool import EnvPool
-from seal.sim.suites import get_task
-from seal.steer.engine import Steerer, SteerConfig
-from seal.steer.run import expert_policy
+from seal.sim.suites import get_task, parse_task_ids
+from seal.steer.build import build_episode
+from seal.steer.method import MethodSpec
 from seal.verify.base import Verdict
 from seal.verify.oracle import OracleVerifier
 
@@ -29,26 +29,21 @@ class FixedLatencyOracle(OracleVerifier):
         return verdict
 
 
-def _tasks(args) -> list[int]:
-    tasks = [int(t) for t in (args.tasks or "0,1,7").split(",")]
-    for t in tasks:
-        get_task(args.suite, t)
-    return tasks
+def _tasks(args, default: str) -> list[int]:
+    return parse_task_ids(args.suite, args.tasks or default)
 
 
 def run_steer(args) -> dict:
-    knobs = FailureKnobs.misaligned()
     per_task = {}
-    for t in _tasks(args):
+    methods = {m: MethodSpec(method=m, k=args.k, knobs="misaligned", verifier="oracle") for m in ("base", "seal")}
+    for t in _tasks(args, "0,1,7"):
         spec = get_task(args.suite, t)
         wins = {"base": 0, "seal": 0}
         with EnvPool(spec, k=args.k, workers=args.workers) as pool:
             for trial in range(args.trials):
-                for method in ("base", "seal"):
-                    config = SteerConfig(method=method, k=args.k, seed=trial)
-                    steerer = Steerer(pool, expert_policy(spec, knobs, seed=trial),
-                                      OracleVerifier() if method == "seal" else None, config)
-                    wins[method] += steerer.run(trial % pool.task.init_states().shape[0]).success
+                for name, method in methods.items():
+                    with build_episode(method, spec, seed=trial, pool=pool) as episode:
+                        wins[name] += episode.run(trial % pool.task.init_states().shape[0]).success
         per_task[str(t)] = {m: round(w / args.trials, 3) for m, w in wins.items()}
     base = float(np.mean([v["base"] for v in per_task.values()]))
     seal = float(np.mean([v["seal"] for v in per_task.values()]))
@@ -58,20 +53,23 @@ def run_steer(args) -> dict:
 
 
 def run_runtime(args) -> dict:
-    ks = [int(k) for k in (args.ks or "1,2,4,8,10").split(",")]
-    task = _tasks(args)[0] if args.tasks else 5
+    try:
+        ks = [int(k) for k in (args.ks or "1,2,4,8,10").split(",")]
+    except ValueError:
+        raise InvalidInput(f"--ks must be comma-separated K values, got {args.ks!r}") from None
+    task = _tasks(args, "5")[0]
     spec = get_task(args.suite, task)
     rows = []
     for latency in (0.0, args.latency):
         for k in ks:
             with EnvPool(spec, k=k, workers=args.workers) as pool:
                 verifier = OracleVerifier() if latency == 0 else FixedLatencyOracle(latency)
-                config = SteerConfig(method="seal", k=k, seed=0)
+                method = MethodSpec(method="seal", k=k, knobs="misaligned")
                 steps = wall = 0
                 timing = {"sampling_s": 0.0, "predict_s": 0.0, "verify_wait_s": 0.0}
                 for trial in range(args.trials):
-                    r = Steerer(pool, expert_policy(spec, FailureKnobs.misaligned(), seed=trial), verifier,
-                                config).run(trial)
+                    with build_episode(method, spec, seed=0, pool=pool, verifier=verifier) as episode:
+                        r = episode.run(trial)
                     steps += max(r.steps, 1)
                     wall += r.wall_s
                     for key in timing:

@@ -140,7 +140,7 @@ def _write_json_atomic(path: Path, obj: Any) -> None:
     os.replace(tmp, path)
 
 
-def _read_jsonl(path: Path) -> tuple[list[dict], bool]:
+def read_jsonl(path: Path) -> tuple[list[dict], bool]:
     """Complete records of a jsonl file, and whether a torn (partial) last line was skipped.
 
     Only the last line can be torn (we only ever append); a bad line elsewhere is corruption.
@@ -164,7 +164,7 @@ def _read_jsonl(path: Path) -> tuple[list[dict], bool]:
     return records, torn
 
 
-def _write_jsonl_atomic(path: Path, records: list[dict]) -> None:
+def write_jsonl_atomic(path: Path, records: list[dict]) -> None:
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text("".join(json.dumps(r) + "\n" for r in records))
     os.replace(tmp, path)
@@ -185,7 +185,7 @@ def _json_default(obj: Any) -> Any:
     raise TypeError(f"{type(obj).__name__} is not JSON serializable")
 
 
-def _encode_video(frames: np.ndarray, path: Path, fps: int) -> None:
+def encode_video(frames: np.ndarray, path: Path, fps: int) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
     with av.open(str(tmp), mode="w", format="mp4") as container:
@@ -367,24 +367,24 @@ class LeRobotWriter:
     def _recover(self) -> None:
         """Load the committed episodes and remove every trace of an episode that was not committed."""
         meta = self.root / "meta"
-        episodes, torn = _read_jsonl(meta / "episodes.jsonl")
+        episodes, torn = read_jsonl(meta / "episodes.jsonl")
         for position, record in enumerate(episodes):
             if record.get("episode_index") != position:
                 raise InvalidInput(f"{meta / 'episodes.jsonl'}: line {position + 1} has episode_index "
                                    f"{record.get('episode_index')!r}, expected {position}; the dataset is corrupt")
         if torn:
-            _write_jsonl_atomic(meta / "episodes.jsonl", episodes)
+            write_jsonl_atomic(meta / "episodes.jsonl", episodes)
         n = len(episodes)
 
-        tasks, torn = _read_jsonl(meta / "tasks.jsonl")
+        tasks, torn = read_jsonl(meta / "tasks.jsonl")
         if torn:
-            _write_jsonl_atomic(meta / "tasks.jsonl", tasks)
+            write_jsonl_atomic(meta / "tasks.jsonl", tasks)
         self._tasks = {t["task"]: t["task_index"] for t in tasks}
 
-        stats, torn = _read_jsonl(meta / "episodes_stats.jsonl")
+        stats, torn = read_jsonl(meta / "episodes_stats.jsonl")
         kept = [s for s in stats if s.get("episode_index", n) < n]
         if torn or len(kept) != len(stats):
-            _write_jsonl_atomic(meta / "episodes_stats.jsonl", kept)
+            write_jsonl_atomic(meta / "episodes_stats.jsonl", kept)
 
         # Files of uncommitted episodes, and temp files of interrupted writes.
         for directory in (self.root / "data", self.root / "videos"):
@@ -418,9 +418,9 @@ class LeRobotWriter:
         T = episode.length
         task_index = self._tasks.get(episode.instruction, len(self._tasks))
 
-        _encode_video(episode.agent_images, self.root / VIDEO_PATH.format(
+        encode_video(episode.agent_images, self.root / VIDEO_PATH.format(
             episode_chunk=chunk, video_key=AGENT_VIDEO_KEY, episode_index=index), self.fps)
-        _encode_video(episode.wrist_images, self.root / VIDEO_PATH.format(
+        encode_video(episode.wrist_images, self.root / VIDEO_PATH.format(
             episode_chunk=chunk, video_key=WRIST_VIDEO_KEY, episode_index=index), self.fps)
 
         frame_index = np.arange(T, dtype=np.int64)
@@ -514,7 +514,7 @@ class LeRobotReader:
         if self.version == "v2.1":
             # episodes.jsonl, not info.json, is the record of complete episodes (see module doc);
             # a torn last line is an episode still being written and is not shown.
-            self._episodes, _ = _read_jsonl(self.root / "meta" / "episodes.jsonl")
+            self._episodes, _ = read_jsonl(self.root / "meta" / "episodes.jsonl")
         elif self.version == "v3.0":
             self._episodes = self._load_v30_episodes()
         else:
@@ -594,8 +594,8 @@ class LeRobotReader:
             instruction=list(record["tasks"])[0],
             agent_images=agent,
             wrist_images=wrist,
-            states=_fixed_list_to_numpy(table.column(STATE_KEY)),
-            actions=_fixed_list_to_numpy(table.column(ACTION_KEY)),
+            states=fixed_list_to_numpy(table.column(STATE_KEY)),
+            actions=fixed_list_to_numpy(table.column(ACTION_KEY)),
             subplans=list(record.get("subplans") or []),
             critical_frames=[int(f) for f in record.get("critical_frames") or []],
             meta=dict(meta),
@@ -616,7 +616,7 @@ class LeRobotReader:
         return rows
 
 
-def _fixed_list_to_numpy(column: pa.ChunkedArray) -> np.ndarray:
+def fixed_list_to_numpy(column: pa.ChunkedArray) -> np.ndarray:
     array = column.combine_chunks()
     width = array.type.list_size if pa.types.is_fixed_size_list(array.type) else None
     flat = array.flatten().to_numpy(zero_copy_only=False).astype(np.float32, copy=False)

@@ -59,7 +59,14 @@ class ActionChunk:
 
 
 class ReasoningPolicy(Protocol):
-    """Anything that writes sub-plans and acts on them (scripted expert, openpi client, ...)."""
+    """Anything that writes sub-plans and acts on them (scripted expert, openpi client, ...).
+    Built by name with `seal.policies.make_policy`."""
+
+    thinks: bool  # False: never emits <think> (plain pi0 + a planner); the verifier ends its sub-plans
+
+    def close(self) -> None:
+        """Release what the policy holds (sockets, threads); a no-op for in-process policies."""
+        ...
 
     def privileged_atoms(self) -> list[str] | None:
         """Goal atoms a scripted policy reads from the privileged `SceneState`; None for a

@@ -23,6 +23,7 @@ verifier accepts (``thinks = False``).
 from __future__ import annotations
 
 import inspect
+import os
 import logging
 import time
 import uuid
@@ -321,3 +322,16 @@ class OpenpiPolicy:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def remote_policy(spec, task, *, seed: int = 0) -> OpenpiPolicy:
+    """`seal.policies.make_policy`'s ``remote`` entry: a server at ``spec.host:spec.port``, plus a
+    planner (``spec.planner``) when it does not reason. ``seed`` goes to the server at ``reset``."""
+    from seal.serving.planners import make_planner
+
+    planner = None if not spec.planner else make_planner(spec.planner, spec=task, annotations=spec.annotations,
+                                                         model=spec.planner_model, base_url=spec.base_url)
+    config = ClientConfig(host=spec.host, port=spec.port, transport=spec.transport,
+                          request_timeout_s=spec.request_timeout, prompt=spec.prompt,
+                          api_key=os.environ.get("OPENPI_API_KEY") or None)  # secrets: environment only
+    return OpenpiPolicy(config, task=task.key, planner=planner)

@@ -115,10 +115,10 @@ class VLMPlanner:
 
     def __init__(self, model: str = "gpt-4o", base_url: str | None = None, *, api_key: str | None = None,
                  timeout_s: float = 60.0, max_retries: int = 2):
-        from seal.verify.vlm import _require_key, _require_sdk, _Secrets
+        from seal.vlm import require_key, require_sdk, Secrets
 
-        _require_sdk("openai")
-        _require_key("openai", api_key)
+        require_sdk("openai")
+        require_key("openai", api_key)
         from openai import OpenAI
 
         kwargs: dict[str, Any] = {"timeout": timeout_s, "max_retries": max_retries}
@@ -127,7 +127,7 @@ class VLMPlanner:
         if base_url is not None:  # else OPENAI_BASE_URL or the SDK's default
             kwargs["base_url"] = base_url
         self._client = OpenAI(**kwargs)
-        self._secrets = _Secrets("openai", api_key)
+        self._secrets = Secrets("openai", api_key)
         self.model = model
         self.calls = 0
         self.reset("")
@@ -144,7 +144,7 @@ class VLMPlanner:
         if self._plans:
             known = ("Your plan so far (keep it unless it is clearly wrong): "
                      + json.dumps(list(self._plans)) + "\nSteps already attempted: " + json.dumps(self._asked) + "\n")
-        from seal.verify.vlm import encode_image
+        from seal.vlm import encode_image
 
         url = "data:image/png;base64," + base64.b64encode(encode_image(obs.agent, "png", "agent")).decode("ascii")
         content = [{"type": "text", "text": _PROMPT.format(instruction=self._instruction or obs.prompt, known=known)},

@@ -45,18 +45,19 @@ POLICIES = ("scripted",)
 
 
 def scripted_factory(knobs: str = "misaligned", seed: int = 0) -> PolicyFactory:
-    """The scripted expert for whatever task a client configures."""
-    from seal.policies.expert.policy import FailureKnobs
+    """The scripted expert for whatever task a client configures (built through the policy
+    registry, like every other policy)."""
+    from seal.policies import make_policy
     from seal.sim.suites import get_task
-    from seal.steer.run import expert_policy
+    from seal.steer.method import MethodSpec
 
-    setting = FailureKnobs.named(knobs)  # fail on a bad name now, not at the first client
+    spec = MethodSpec(policy="scripted", knobs=knobs)  # fail on a bad name now, not at the first client
 
     def make(task: str):
         suite, _, index = str(task).partition("/")
         if not index.isdigit():
             raise InvalidInput(f"task must look like 'libero_10/0', got {task!r}")
-        return expert_policy(get_task(suite, int(index)), setting, seed=seed)
+        return make_policy("scripted", spec, get_task(suite, int(index)), seed=seed)
 
     return make
 

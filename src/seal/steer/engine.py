@@ -20,31 +20,36 @@ when the verifier accepts or on its step budget.
 If no candidate passes, the round is resampled (up to ``rounds`` rounds); then the candidate
 with the best verifier score wins, and if no verifier gave a score, the first candidate.
 
-Methods share this loop: ``base`` (K=1, nothing verified: the policy alone), ``random`` (a
-random finished candidate), ``value`` (V-GPS: at every chunk, K sampled chunks are ranked by a
-scorer Q(obs, chunk, goal text) and the best one is executed; the goal text is the task or the
-sub-plan), ``seal`` (verified, early exit).
+Methods share this loop and differ only in their candidate selection (`seal.steer.selection`):
+``base`` (K=1, nothing verified: the policy alone), ``random`` (a random finished candidate),
+``value`` (V-GPS: at every chunk, K sampled chunks are ranked by a scorer Q(obs, chunk, goal
+text) and the best one is executed; the goal text is the task or the sub-plan), ``seal``
+(verified, early exit). The loop never asks which method it runs.
+
+What happens is published as events (``subplan``, ``candidate``, ``round_end``, ``commit``,
+``episode_end``) to subscribers (`seal.steer.events`): the trace, the candidate grids and
+progress displays listen; the loop writes no file itself.
 """
 
 from __future__ import annotations
 
 import time
-from concurrent.futures import Future
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from seal.errors import InvalidInput
-from seal.policies.base import ACTION_HORIZON, Reasoning
+from seal.policies.base import ACTION_HORIZON
 from seal.sim.observation import Observation
 from seal.sim.snapshot import Snapshot
 from seal.steer.background import BackgroundVerifier
+from seal.steer.events import GridWriter, Subscriber
+from seal.steer.method import MODES, VALUE_GOALS
+from seal.steer.selection import METHODS, Candidate, Check, Subplan, selection_for
 from seal.steer.trace import Trace
 from seal.verify.base import Verdict, VerifyRequest
 
-METHODS = ("base", "random", "value", "seal")
-VALUE_GOALS = ("task", "subplan")
-MODES = ("sync", "replay")
+__all__ = ["METHODS", "Candidate", "SteerConfig", "SteerResult", "Steerer"]
 
 
 @dataclass(frozen=True)
@@ -73,35 +78,7 @@ class SteerConfig:
 
     @property
     def effective_k(self) -> int:
-        return 1 if self.method == "base" else self.k
-
-
-@dataclass
-class Candidate:
-    round: int
-    slot: int
-    actions: list = field(default_factory=list)  # executed (5-step) chunks, in order
-    steps: int = 0
-    snapshot: Snapshot | None = None
-    ended_by: str = ""  # think | budget | step_limit | task_success | verified | error
-    error: str | None = None
-    verdict: Verdict | None = None
-    future: Future | None = None
-    t_start: float = 0.0
-    t_end: float = 0.0
-    t_verified: float = 0.0
-    checks: list = field(default_factory=list)  # mid-rollout checks of a policy that never thinks
-
-
-@dataclass
-class _Check:
-    """A verification of a candidate's state part-way through its rollout."""
-
-    future: Future
-    snapshot: Snapshot
-    chunks: int  # executed chunks up to this point
-    steps: int
-    verdict: Verdict | None = None
+        return selection_for(self.method).k(self)
 
 
 @dataclass
@@ -128,15 +105,18 @@ class SteerResult:
     trace: str = ""
 
 
+
 class Steerer:
-    """Runs steered episodes of one task on an `EnvPool` of at least K slots."""
+    """Runs steered episodes of one task on an `EnvPool` of at least K slots.
+
+    ``trace`` and ``grid_dir`` are shorthands for the two usual subscribers; ``subscribers``
+    adds any others (progress displays, tests).
+    """
 
     def __init__(self, pool, policy, verifier, config: SteerConfig, *, eval_world=None, trace: Trace | None = None,
-                 grid_dir=None, scorer=None):
-        if config.method == "seal" and verifier is None:
-            raise InvalidInput("method 'seal' needs a verifier (e.g. --verifier oracle)")
-        if config.method == "value" and scorer is None:
-            raise InvalidInput("method 'value' needs a chunk scorer (a trained V-GPS Q-function)")
+                 grid_dir=None, scorer=None, subscribers: tuple[Subscriber, ...] = ()):
+        self.selection = selection_for(config.method)
+        self.selection.check(verifier, scorer)
         self.scorer = scorer
         if pool.k < config.effective_k:
             raise InvalidInput(f"the pool has {pool.k} slots but method {config.method!r} needs k={config.effective_k}")
@@ -145,13 +125,16 @@ class Steerer:
         self.pool, self.policy, self.config, self.trace = pool, policy, config, trace
         self.verifier = verifier
         self.eval_world = eval_world
-        self.grid_dir = grid_dir  # write a candidate contact sheet per round here (costs K renders)
+        self.subscribers: list[Subscriber] = [s for s in (trace,) if s is not None]
+        if grid_dir is not None:  # a candidate contact sheet per round (costs K renders)
+            self.subscribers.append(GridWriter(pool, grid_dir))
+        self.subscribers += list(subscribers)
         self._subplan_index = 0
-        self._rng = np.random.default_rng(config.seed)
-        self._atoms = policy.privileged_atoms() if hasattr(policy, "privileged_atoms") else None
-        self._needs_images = self._atoms is None  # a real VLA looks at images; the expert does not
+        self.rng = np.random.default_rng(config.seed)
+        self.atoms = policy.privileged_atoms()
+        self.needs_images = self.atoms is None  # a real VLA looks at images; the expert does not
         # A policy without <think> (plain pi0 + a planner): the verifier decides when a sub-plan is done.
-        self._check_midway = config.method == "seal" and not getattr(policy, "thinks", True)
+        self._check_midway = self.selection.verifies and not policy.thinks
 
     # ---- the episode ------------------------------------------------------------------------
     def run(self, init_index: int) -> SteerResult:
@@ -171,15 +154,17 @@ class Steerer:
         background = BackgroundVerifier(self.verifier) if self.verifier is not None else None
         try:
             while committed.steps < max_steps:
-                obs = self._observe(0, images=self._needs_images or self._verifier_images(), atoms=self._atoms)
+                obs = self._observe(0, images=self.needs_images or self.selection.judge_needs_images(self),
+                                    atoms=self.atoms)
                 reasoning = self.policy.reason(obs)
                 if not result.subplans:
                     result.subplans = list(reasoning.plans)
                 if reasoning.finished:
                     break
                 self._subplan_index += 1
-                self._emit("subplan", step=committed.steps, text=reasoning.now, reasoning=reasoning.text())
-                winner = self._steer_subplan(committed, obs, reasoning, max_steps, background, result)
+                self.emit("subplan", step=committed.steps, text=reasoning.now, reasoning=reasoning.text())
+                sub = Subplan(self._subplan_index, committed, obs, reasoning, max_steps, background, result)
+                winner = self.selection.run_subplan(self, sub)
                 if winner is None:  # every candidate hit a simulator error
                     result.sim_error = True
                     break
@@ -199,100 +184,39 @@ class Steerer:
         result.success = bool(status) and all(status.values()) and not result.sim_error
         result.steps = committed.steps
         result.wall_s = round(time.perf_counter() - start, 3)
-        self._emit("episode_end", success=result.success, steps=result.steps, sim_error=result.sim_error)
+        self.emit("episode_end", success=result.success, steps=result.steps, sim_error=result.sim_error)
         return result
 
-    # ---- one sub-plan: rounds of K candidates --------------------------------------------------
-    def _steer_subplan(self, committed, obs0, reasoning, max_steps, background, result) -> Candidate | None:
-        cfg = self.config
-        if cfg.method == "value":
-            return self._value_subplan(committed, obs0, reasoning, max_steps, result)
-        rounds = 1 if cfg.method in ("base", "random") else cfg.rounds
-        tried: list[Candidate] = []
-        for r in range(rounds):
-            result.rounds += 1
-            cands, winner = self._round(r, committed, obs0, reasoning, max_steps, background, result)
-            tried += cands
-            if winner is not None:
-                return winner
-        usable = [c for c in tried if c.error is None and c.snapshot is not None]
-        if not usable:
-            return None
-        result.fallbacks += cfg.method == "seal"
-        if cfg.method == "random":
-            return usable[int(self._rng.integers(len(usable)))]
-        scored = [c for c in usable if c.verdict is not None and c.verdict.score is not None]
-        return max(scored, key=lambda c: c.verdict.score) if scored else usable[0]
-
-    def _value_subplan(self, committed, obs0, reasoning, max_steps, result) -> Candidate | None:
-        """V-GPS: sample K chunks from one state, execute the one the scorer rates best, repeat."""
-        cfg, k = self.config, self.config.k
-        goal = self.pool.task.instruction if cfg.value_goal == "task" else reasoning.now
-        self.pool.sync(committed)
-        self.policy.begin(k)
-        c = Candidate(round=0, slot=0, snapshot=committed, t_start=time.perf_counter())
-        obs = obs0
-        while True:
-            t0 = time.perf_counter()
-            chunks = self.policy.act([obs] * k, reasoning, rows=list(range(k)))
-            acting = [i for i, ch in enumerate(chunks) if not ch.think]
-            end = ("think" if len(acting) <= k // 2 else "budget" if c.steps >= cfg.subplan_budget
-                   else "step_limit" if committed.steps + c.steps >= max_steps else "")
-            if end:  # most samples say the sub-plan is done: the policy would think now
-                c.ended_by, c.t_end = end, time.perf_counter()
-                break
-            scores = np.asarray(self.scorer.score(obs, np.stack([chunks[i].actions for i in acting]), goal))
-            best = acting[int(np.argmax(scores))]
-            result.timing["sampling_s"] += time.perf_counter() - t0
-            t0 = time.perf_counter()
-            chunk = np.clip(chunks[best].actions[:ACTION_HORIZON], -1.0, 1.0)
-            res = self.pool.step({0: chunk}, observe=True, images=self._needs_images or self.scorer_needs_images,
-                                 privileged_atoms=self._atoms, stop_on_success=True)[0]
-            result.timing["predict_s"] += time.perf_counter() - t0
-            if not res.ok:
-                c.error, c.ended_by = res.error or "sim_error", "error"
-                return None
-            c.actions.append(chunk[: res.steps])
-            c.steps += res.steps
-            c.snapshot, obs = res.snapshot, res.observation
-            if res.success:
-                c.ended_by, c.t_end = "task_success", time.perf_counter()
-                break
-        self._emit("candidate", round=0, slot=0, steps=c.steps, ended_by=c.ended_by, error=c.error,
-                   snapshot=c.snapshot.id, verdict=None, t_start=c.t_start, t_end=c.t_end, t_verified=0.0)
-        return c
-
-    @property
-    def scorer_needs_images(self) -> bool:
-        return bool(getattr(self.scorer, "needs_images", True))
-
-    def _round(self, r, committed, obs0, reasoning, max_steps, background, result):
-        cfg, pool = self.config, self.pool
+    # ---- one round of K candidates -------------------------------------------------------------
+    def run_round(self, sub: Subplan, r: int) -> Candidate | None:
+        """K candidates from the committed state until one wins or all end; returns the winner."""
+        cfg, pool, result = self.config, self.pool, sub.result
         k = cfg.effective_k
-        pool.sync(committed)
+        pool.sync(sub.committed)
         self.policy.begin(k)
         now = time.perf_counter()
-        cands = [Candidate(round=r, slot=i, snapshot=committed, t_start=now) for i in range(k)]
-        obs = {i: obs0 for i in range(k)}
+        cands = [Candidate(round=r, slot=i, snapshot=sub.committed, t_start=now) for i in range(k)]
+        sub.tried += cands
+        obs = {i: sub.obs0 for i in range(k)}
         active = list(range(k))
         winner = None
         while active and winner is None:
             t0 = time.perf_counter()
-            chunks = self.policy.act([obs[i] for i in active], reasoning, rows=active)
+            chunks = self.policy.act([obs[i] for i in active], sub.reasoning, rows=active)
             result.timing["sampling_s"] += time.perf_counter() - t0
             to_step = {}
             for i, chunk in zip(list(active), chunks):
                 c = cands[i]
                 end = ("think" if chunk.think else "budget" if c.steps >= cfg.subplan_budget
-                       else "step_limit" if committed.steps + c.steps >= max_steps else "")
+                       else "step_limit" if sub.committed.steps + c.steps >= sub.max_steps else "")
                 if end:
-                    self._finish(c, end, obs0, reasoning, background, result)
+                    self._finish(c, end, sub)
                     active.remove(i)
                 else:
                     to_step[i] = np.clip(chunk.actions[:ACTION_HORIZON], -1.0, 1.0)
             if to_step:
                 t0 = time.perf_counter()
-                stepped = pool.step(to_step, observe=True, images=self._needs_images, privileged_atoms=self._atoms,
+                stepped = pool.step(to_step, observe=True, images=self.needs_images, privileged_atoms=self.atoms,
                                     stop_on_success=True)
                 result.timing["predict_s"] += time.perf_counter() - t0
                 for res in stepped:
@@ -306,11 +230,11 @@ class Steerer:
                     c.snapshot = res.snapshot
                     obs[res.slot] = res.observation
                     if res.success:  # the whole task holds: nothing left to verify against
-                        self._finish(c, "task_success", obs0, reasoning, background, result)
+                        self._finish(c, "task_success", sub)
                         active.remove(res.slot)
                     elif self._check_midway and c.steps >= (len(c.checks) + 1) * cfg.check_every:
-                        c.checks.append(_Check(background.submit(self._request(c, obs0, reasoning)), c.snapshot,
-                                               len(c.actions), c.steps))
+                        c.checks.append(Check(sub.background.submit(self._request(c, sub)), c.snapshot,
+                                              len(c.actions), c.steps))
                         result.verifier_calls += 1
             if self._check_midway:
                 self._take_checks(cands, active)
@@ -328,31 +252,32 @@ class Steerer:
                     self._account(chk.verdict)
                 elif not chk.future.done():
                     chk.future.cancel()
-        if self.grid_dir is not None:
-            self._grid(r, cands, reasoning)
+        # The slots still hold the candidates' end states here: a grid subscriber renders them now.
+        self.emit("round_end", subplan=sub.index, round=r, candidates=cands, reasoning=sub.reasoning)
         for c in cands:
-            self._emit("candidate", round=r, slot=c.slot, steps=c.steps, ended_by=c.ended_by, error=c.error,
-                       snapshot=c.snapshot.id if c.snapshot else None,
-                       verdict=_verdict_dict(c.verdict), t_start=c.t_start, t_end=c.t_end, t_verified=c.t_verified)
-        return cands, winner
+            self.emit("candidate", round=r, slot=c.slot, steps=c.steps, ended_by=c.ended_by, error=c.error,
+                      snapshot=c.snapshot.id if c.snapshot else None,
+                      verdict=_verdict_dict(c.verdict), t_start=c.t_start, t_end=c.t_end, t_verified=c.t_verified)
+        return winner
 
-    def _finish(self, c: Candidate, how: str, obs0, reasoning, background, result) -> None:
-        """A candidate ended: hand it to the verifier (seal) or mark it done (base/random)."""
+    def _finish(self, c: Candidate, how: str, sub: Subplan) -> None:
+        """A candidate ended: hand it to the verifier (methods that verify) or just mark it done."""
         c.ended_by, c.t_end = how, time.perf_counter()
-        if self.config.method != "seal":
+        if not self.selection.verifies:
             return
         if how == "task_success":  # LIBERO's own success check passed in this candidate's world
             c.verdict = Verdict(True, "the task's goal holds", score=1.0)
             c.t_verified = c.t_end
             return
-        c.future = background.submit(self._request(c, obs0, reasoning))
-        result.verifier_calls += 1
+        c.future = sub.background.submit(self._request(c, sub))
+        sub.result.verifier_calls += 1
 
-    def _request(self, c: Candidate, obs0, reasoning) -> VerifyRequest:
+    def _request(self, c: Candidate, sub: Subplan) -> VerifyRequest:
         """What the verifier judges: the sub-plan and the candidate's slot as it is now."""
+        reasoning = sub.reasoning
         request = VerifyRequest(subplan=reasoning.now, instruction=self.pool.task.instruction, plans=reasoning.plans,
                                 index=reasoning.plans.index(reasoning.now) if reasoning.now in reasoning.plans else None,
-                                first_agent=obs0.agent, task=self.pool.task.key, candidate=c.slot)
+                                first_agent=sub.obs0.agent, task=self.pool.task.key, candidate=c.slot)
         atoms = self.verifier.atoms_needed(request, self._objects)
         final = self._observe(c.slot, images=self.verifier.needs_images, atoms=atoms)
         request.scene, request.final_agent, request.final_wrist = final.scene, final.agent, final.wrist
@@ -375,21 +300,14 @@ class Steerer:
                     break
 
     def _first_pass(self, cands: list[Candidate]) -> Candidate | None:
-        method = self.config.method
-        if method == "base":
-            return cands[0] if cands[0].ended_by and cands[0].error is None else None
-        if method == "random":
-            return None  # decided once every candidate has ended
-        passed = []
-        for c in cands:
-            if c.future is not None and c.future.done() and c.verdict is None:
-                self._take_verdict(c)
-            if c.verdict is not None and c.verdict.passed:
-                passed.append(c)
-        return min(passed, key=lambda c: c.t_verified) if passed else None
+        if self.selection.verifies:  # collect the verdicts that have come in meanwhile
+            for c in cands:
+                if c.future is not None and c.future.done() and c.verdict is None:
+                    self._take_verdict(c)
+        return self.selection.early_winner(cands)
 
     def _wait_for_verdicts(self, cands, result) -> Candidate | None:
-        if self.config.method != "seal":
+        if not self.selection.verifies:
             return None
         t0 = time.perf_counter()
         for c in sorted((c for c in cands if c.future is not None and c.verdict is None), key=lambda c: c.t_end):
@@ -424,40 +342,24 @@ class Steerer:
             result.divergence.append(gap)
             target = real
         self.pool.sync(target)
-        self._emit("commit", slot=winner.slot, round=winner.round, steps=target.steps, snapshot=target.id,
-                   ended_by=winner.ended_by, verdict=_verdict_dict(winner.verdict))
+        self.emit("commit", slot=winner.slot, round=winner.round, steps=target.steps, snapshot=target.id,
+                  ended_by=winner.ended_by, verdict=_verdict_dict(winner.verdict))
         return target
 
-    def _grid(self, r: int, cands: list[Candidate], reasoning: Reasoning) -> None:
-        from pathlib import Path
-
-        from seal.sim.observation import to_policy_image
-        from seal.steer.grid import candidate_grid
-
-        shown = [c for c in cands if c.snapshot is not None]
-        views = self.pool.render(("agentview",), slots=[c.slot for c in shown])  # slots still hold end states
-        labels = [f"#{c.slot} {c.steps} steps, {c.ended_by}" for c in shown]
-        verdicts = [c.verdict.success if c.verdict is not None else None for c in shown]
-        candidate_grid([to_policy_image(v["agentview"]) for v in views], labels, verdicts,
-                       Path(self.grid_dir) / f"subplan{self._subplan_index:02d}_round{r}.png",
-                       title=f"{reasoning.now} (round {r})")
-
     # ---- small helpers ------------------------------------------------------------------------
+    @property
+    def scorer_needs_images(self) -> bool:
+        return bool(self.scorer.needs_images)  # declared by the ChunkScorer protocol
+
     def _observe(self, slot: int, *, images: bool, atoms) -> Observation:
         return self.pool.observe([slot], images=images, privileged_atoms=atoms)[0]
-
-    def _verifier_images(self) -> bool:
-        """Whether the judge of this method (verifier or value scorer) looks at the frame."""
-        if self.config.method == "value":
-            return self.scorer is not None and self.scorer_needs_images
-        return self.verifier is not None and self.config.method == "seal" and self.verifier.needs_images
 
     def _goal_atoms(self) -> list[str]:
         return [str(a) for a in self.pool.task.goal_atoms()]
 
-    def _emit(self, event: str, **fields) -> None:
-        if self.trace is not None:
-            self.trace.write(event, **fields)
+    def emit(self, event: str, **fields) -> None:
+        for subscriber in self.subscribers:
+            subscriber.on_event(event, fields)
 
 
 def _verdict_dict(v: Verdict | None) -> dict | None:

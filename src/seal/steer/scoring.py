@@ -3,6 +3,7 @@
 ``score(obs, chunks, goal) -> (K,) array``, higher is better. The paper's baseline uses an
 IQL-trained Q-function conditioned on the task instruction (or, adapted to reasoning VLAs, on
 the current sub-plan); SEAL's `value` method re-ranks K chunks with it at every step.
+``make_scorer(name, checkpoint)`` loads one by name (``value``: `seal.train.vgps.VGPSScorer`).
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from typing import Protocol
 
 import numpy as np
 
+from seal.registry import Registry
 from seal.sim.observation import Observation
 
 
@@ -20,3 +22,11 @@ class ChunkScorer(Protocol):
     def score(self, obs: Observation, chunks: np.ndarray, goal: str) -> np.ndarray:
         """``chunks`` is (K, horizon, 7); returns K scores, higher is better."""
         ...
+
+
+# factory(checkpoint path) -> ChunkScorer
+SCORERS = Registry("scorer", {"value": "seal.train.vgps:VGPSScorer.load"})
+
+
+def make_scorer(name: str, checkpoint: str) -> ChunkScorer:
+    return SCORERS.make(name, checkpoint)

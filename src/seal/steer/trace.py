@@ -12,6 +12,8 @@ import json
 import time
 from pathlib import Path
 
+EVENTS = ("subplan", "candidate", "commit", "episode_end")  # what a trace file holds
+
 
 class Trace:
     def __init__(self, path: Path):
@@ -27,6 +29,11 @@ class Trace:
         record = {"event": event, "t": round(time.perf_counter() - self._t0, 4), **fields}
         self._file.write(json.dumps(record, default=_plain) + "\n")
         self._file.flush()  # a crash keeps everything up to the last event
+
+    def on_event(self, event: str, fields: dict) -> None:
+        """As a loop subscriber (`seal.steer.events`): every event but the in-memory ``round_end``."""
+        if event in EVENTS:
+            self.write(event, **fields)
 
     def close(self) -> None:
         self._file.close()

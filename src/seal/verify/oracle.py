@@ -19,7 +19,7 @@ import re
 import time
 from dataclasses import dataclass
 
-from seal.policies.expert.plan import NAMES, category
+from seal.sim.lexicon import NAMES, category
 from seal.sim.goals import GoalAtom
 from seal.verify.base import Verdict, VerifyRequest
 

@@ -19,44 +19,10 @@ from dataclasses import dataclass
 
 from seal.errors import InvalidInput
 from seal.sim.goals import PREDICATES as PREDICATE_NAMES, GoalAtom
+from seal.sim.lexicon import NAMES, category
 
 SKILLS = ("pick", "place", "open", "close", "turn_on", "turn_off")
 
-# How an object category is called, most specific first; the first phrase found in the
-# instruction wins, so the plan echoes the instruction's wording ("cream cheese box", or
-# "box of cheese" in the object-property suite), as a reasoning VLA would.
-NAMES: dict[str, tuple[str, ...]] = {
-    "alphabet_soup": ("alphabet soup", "can of soup"),
-    "tomato_sauce": ("tomato sauce", "can of sauce"),
-    "cream_cheese": ("cream cheese box", "box of cheese", "cream cheese"),
-    "butter": ("box of butter", "butter"),
-    "ketchup": ("ketchup",),
-    "milk": ("milk",),
-    "orange_juice": ("orange juice",),
-    "chocolate_pudding": ("chocolate pudding", "brown chocolate"),
-    "new_salad_dressing": ("salad dressing",),
-    "bbq_sauce": ("bbq sauce",),
-    "porcelain_mug": ("white mug", "pure white cup"),
-    "white_yellow_mug": ("yellow and white mug", "middle mug"),
-    "red_coffee_mug": ("red mug",),
-    "akita_black_bowl": ("black bowl", "middle bowl", "bowl"),
-    "white_bowl": ("white bowl", "bowl"),
-    "moka_pot": ("moka pot", "moka machine", "moka coffee maker"),
-    "chefmate_8_frypan": ("frying pan",),
-    "black_book": ("book",),
-    "yellow_book": ("book",),
-    "wine_bottle": ("wine bottle",),
-    "plate": ("plate",),
-    "basket": ("basket",),
-    "wooden_tray": ("tray",),
-    "flat_stove": ("stove", "cooktop"),
-    "microwave": ("microwave",),
-    "white_cabinet": ("cabinet",),
-    "wooden_cabinet": ("cabinet",),
-    "wine_rack": ("wine rack",),
-    "desk_caddy": ("caddy",),
-    "wooden_two_layer_shelf": ("cabinet shelf", "shelf"),
-}
 PLATE_SIDES = {"plate_1": "left plate", "plate_2": "right plate"}
 DRAWER_FIXTURES = ("white_cabinet", "wooden_cabinet")
 _LEVELS = ("top", "middle", "bottom")
@@ -69,11 +35,6 @@ class SubPlan:
     obj: str  # the LIBERO name acted on (object, drawer region, stove, microwave)
     goal: GoalAtom  # the sub-goal that proves this sub-plan done
     target: str | None = None  # place: the region or object it goes in/on
-
-
-def category(name: str) -> str:
-    """``alphabet_soup_1`` -> ``alphabet_soup``."""
-    return re.sub(r"_\d+$", "", name)
 
 
 def object_phrase(name: str, instruction: str = "") -> str:

@@ -9,14 +9,15 @@ while its reasoning text still names the right thing.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Sequence
+from typing import ClassVar, Sequence
 
 import numpy as np
 
 from seal.errors import InvalidInput
 from seal.policies.base import ACTION_HORIZON, PREDICT_HORIZON, ActionChunk, Reasoning
 from seal.policies.expert import lay, shelf, shelf_slide, skills, stow, upright
-from seal.policies.expert.plan import SubPlan, category, decompose
+from seal.policies.expert.plan import SubPlan, decompose
+from seal.sim.lexicon import category
 from seal.sim.goals import GoalAtom
 from seal.sim.observation import Observation
 from seal.sim.scene import SceneState
@@ -90,7 +91,18 @@ class ScriptedExpert:
                    initially_open=world.task.initially_open(), knobs=knobs or FailureKnobs(), seed=seed,
                    task=world.task.key)
 
+    @classmethod
+    def for_task(cls, task, knobs: FailureKnobs | None = None, seed: int = 0) -> "ScriptedExpert":
+        """The expert for a `TaskSpec` (no world needed: it plans from the goal atoms)."""
+        return cls(goal_atoms=task.goal_atoms(), instruction=task.instruction, initially_open=task.initially_open(),
+                   knobs=knobs or FailureKnobs(), seed=seed, task=task.key)
+
     # ---- ReasoningPolicy ------------------------------------------------------------------
+    thinks: ClassVar[bool] = True  # it emits <think> when its sub-goal holds
+
+    def close(self) -> None:
+        """Nothing to release (the protocol's close is for policies behind a socket)."""
+
     def privileged_atoms(self) -> list[str]:
         """Facts this policy reads from the scene: every sub-goal, and grasps of all movers."""
         atoms = {str(a) for a in self.goal_atoms}
@@ -263,3 +275,8 @@ def _advance(s: SceneState, action: np.ndarray) -> SceneState:
 
 
 __all__ = ["ScriptedExpert", "FailureKnobs", "progress", "category", "ACTION_HORIZON"]
+
+
+def scripted_policy(spec, task, *, seed: int = 0) -> ScriptedExpert:
+    """`seal.policies.make_policy`'s ``scripted`` entry: the expert with the spec's failure knobs."""
+    return ScriptedExpert.for_task(task, FailureKnobs.named(spec.knobs), seed=seed)

@@ -3,6 +3,9 @@
 A contact sheet shows every task's first frame (agent view, after the settle steps, as the
 policy sees it) labelled with the task id, its instruction and what the variant changes, so a
 person can check the variants by eye.
+
+It sits above `sim` (not in it) because a check plans each task with the scripted expert:
+`sim` must not know any policy.
 """
 
 from __future__ import annotations

@@ -1,0 +1,218 @@
+"""How each method picks the candidate it commits: one small object per method.
+
+The loop (`seal.steer.engine`) runs rounds of K candidates and asks the method's selection
+three questions: how many candidates and rounds, which finished candidate (if any) wins early,
+and which one to fall back on when no round produced a winner. ``value`` does not run rounds of
+whole candidates at all: it re-ranks K sampled chunks at every step, so it brings its own
+sub-plan loop.
+
+    base    K=1, nothing verified: the policy alone; its one candidate wins when it ends
+    random  K candidates, one round; a random finished one
+    seal    K candidates, verified in the background; the first that passes wins (early exit);
+            no pass after ``rounds`` rounds -> the best verifier score, else the first
+    value   V-GPS: at every chunk the scorer's best of K chunks is executed
+"""
+
+from __future__ import annotations
+
+import time
+from concurrent.futures import Future
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from seal.errors import InvalidInput
+from seal.policies.base import ACTION_HORIZON, Reasoning
+from seal.sim.observation import Observation
+from seal.sim.snapshot import Snapshot
+from seal.verify.base import Verdict
+
+if TYPE_CHECKING:
+    from seal.steer.engine import SteerConfig, Steerer, SteerResult
+    from seal.steer.background import BackgroundVerifier
+
+
+@dataclass
+class Candidate:
+    round: int
+    slot: int
+    actions: list = field(default_factory=list)  # executed (5-step) chunks, in order
+    steps: int = 0
+    snapshot: Snapshot | None = None
+    ended_by: str = ""  # think | budget | step_limit | task_success | verified | error | stopped
+    error: str | None = None
+    verdict: Verdict | None = None
+    future: Future | None = None
+    t_start: float = 0.0
+    t_end: float = 0.0
+    t_verified: float = 0.0
+    checks: list = field(default_factory=list)  # mid-rollout checks of a policy that never thinks
+
+
+@dataclass
+class Check:
+    """A verification of a candidate's state part-way through its rollout."""
+
+    future: Future
+    snapshot: Snapshot
+    chunks: int  # executed chunks up to this point
+    steps: int
+    verdict: Verdict | None = None
+
+
+@dataclass
+class Subplan:
+    """Everything the rounds of one sub-plan share (the loop's per-sub-plan state)."""
+
+    index: int  # 1-based, in the episode
+    committed: Snapshot  # where every candidate starts
+    obs0: Observation  # the observation at that state (the verifier's "before" image)
+    reasoning: Reasoning
+    max_steps: int  # the episode's step limit
+    background: "BackgroundVerifier | None"
+    result: "SteerResult"
+    tried: list[Candidate] = field(default_factory=list)
+
+
+class Selection:
+    """The base method: one candidate, nothing verified; subclasses change the answers."""
+
+    name = "base"
+    verifies = False  # finished candidates go to the verifier
+    scores = False  # chunks are ranked by a ChunkScorer (the episode builder loads one)
+
+    def k(self, config: "SteerConfig") -> int:
+        return 1
+
+    def rounds(self, config: "SteerConfig") -> int:
+        return 1
+
+    def check(self, verifier, scorer) -> None:
+        """Refuse a loop that lacks what this method needs."""
+
+    def judge_needs_images(self, loop: "Steerer") -> bool:
+        """Whether this method's judge (verifier or scorer) looks at the sub-plan's first frame."""
+        return self.verifies and loop.verifier is not None and loop.verifier.needs_images
+
+    def early_winner(self, cands: list[Candidate]) -> Candidate | None:
+        """A winner while candidates may still be running (ends the round)."""
+        first = cands[0]
+        return first if first.ended_by and first.error is None else None
+
+    def fallback(self, usable: list[Candidate], rng: np.random.Generator, result: "SteerResult") -> Candidate:
+        """No round produced a winner: pick among the candidates that ended cleanly."""
+        scored = [c for c in usable if c.verdict is not None and c.verdict.score is not None]
+        return max(scored, key=lambda c: c.verdict.score) if scored else usable[0]
+
+    def run_subplan(self, loop: "Steerer", sub: Subplan) -> Candidate | None:
+        """Rounds of K candidates until one wins; None when every candidate hit a simulator error."""
+        for r in range(self.rounds(loop.config)):
+            sub.result.rounds += 1
+            winner = loop.run_round(sub, r)
+            if winner is not None:
+                return winner
+        usable = [c for c in sub.tried if c.error is None and c.snapshot is not None]
+        if not usable:
+            return None
+        return self.fallback(usable, loop.rng, sub.result)
+
+
+class RandomSelection(Selection):
+    name = "random"
+
+    def k(self, config):
+        return config.k
+
+    def early_winner(self, cands):
+        return None  # decided once every candidate has ended
+
+    def fallback(self, usable, rng, result):
+        return usable[int(rng.integers(len(usable)))]
+
+
+class SealSelection(Selection):
+    name = "seal"
+    verifies = True
+
+    def k(self, config):
+        return config.k
+
+    def rounds(self, config):
+        return config.rounds
+
+    def check(self, verifier, scorer):
+        if verifier is None:
+            raise InvalidInput("method 'seal' needs a verifier (e.g. --verifier oracle)")
+
+    def early_winner(self, cands):
+        passed = [c for c in cands if c.verdict is not None and c.verdict.passed]
+        return min(passed, key=lambda c: c.t_verified) if passed else None
+
+    def fallback(self, usable, rng, result):
+        result.fallbacks += 1
+        return super().fallback(usable, rng, result)
+
+
+class ValueSelection(Selection):
+    """V-GPS: sample K chunks from one state, execute the one the scorer rates best, repeat."""
+
+    name = "value"
+    scores = True
+
+    def k(self, config):
+        return config.k
+
+    def check(self, verifier, scorer):
+        if scorer is None:
+            raise InvalidInput("method 'value' needs a chunk scorer (a trained V-GPS Q-function)")
+
+    def judge_needs_images(self, loop):
+        return loop.scorer is not None and loop.scorer_needs_images
+
+    def run_subplan(self, loop: "Steerer", sub: Subplan) -> Candidate | None:
+        cfg, k, result, reasoning = loop.config, loop.config.k, sub.result, sub.reasoning
+        goal = loop.pool.task.instruction if cfg.value_goal == "task" else reasoning.now
+        loop.pool.sync(sub.committed)
+        loop.policy.begin(k)
+        c = Candidate(round=0, slot=0, snapshot=sub.committed, t_start=time.perf_counter())
+        obs = sub.obs0
+        while True:
+            t0 = time.perf_counter()
+            chunks = loop.policy.act([obs] * k, reasoning, rows=list(range(k)))
+            acting = [i for i, ch in enumerate(chunks) if not ch.think]
+            end = ("think" if len(acting) <= k // 2 else "budget" if c.steps >= cfg.subplan_budget
+                   else "step_limit" if sub.committed.steps + c.steps >= sub.max_steps else "")
+            if end:  # most samples say the sub-plan is done: the policy would think now
+                c.ended_by, c.t_end = end, time.perf_counter()
+                break
+            scores = np.asarray(loop.scorer.score(obs, np.stack([chunks[i].actions for i in acting]), goal))
+            best = acting[int(np.argmax(scores))]
+            result.timing["sampling_s"] += time.perf_counter() - t0
+            t0 = time.perf_counter()
+            chunk = np.clip(chunks[best].actions[:ACTION_HORIZON], -1.0, 1.0)
+            res = loop.pool.step({0: chunk}, observe=True, images=loop.needs_images or loop.scorer_needs_images,
+                                 privileged_atoms=loop.atoms, stop_on_success=True)[0]
+            result.timing["predict_s"] += time.perf_counter() - t0
+            if not res.ok:
+                c.error, c.ended_by = res.error or "sim_error", "error"
+                return None
+            c.actions.append(chunk[: res.steps])
+            c.steps += res.steps
+            c.snapshot, obs = res.snapshot, res.observation
+            if res.success:
+                c.ended_by, c.t_end = "task_success", time.perf_counter()
+                break
+        loop.emit("candidate", round=0, slot=0, steps=c.steps, ended_by=c.ended_by, error=c.error,
+                  snapshot=c.snapshot.id, verdict=None, t_start=c.t_start, t_end=c.t_end, t_verified=0.0)
+        return c
+
+
+SELECTIONS: dict[str, type[Selection]] = {s.name: s for s in (Selection, RandomSelection, ValueSelection, SealSelection)}
+METHODS = tuple(SELECTIONS)  # base, random, value, seal
+
+
+def selection_for(method: str) -> Selection:
+    if method not in SELECTIONS:
+        raise InvalidInput(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
+    return SELECTIONS[method]()

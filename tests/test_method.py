@@ -1,0 +1,187 @@
+"""One method description (`MethodSpec`) for `seal run`, `seal eval` and the benchmarks; the
+registries at the seams; the CLI's handling of bad values."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from seal.cli import main
+from seal.errors import InvalidInput
+from seal.eval.trials import trial_seed
+from seal.steer.method import MethodSpec, parse_methods, parse_mismatch
+
+SHORT = 40  # control steps: enough for a sub-plan round with K=2, short enough for a test
+
+
+# ---- identity ---------------------------------------------------------------------------------
+def test_config_hashes_of_older_stores_are_kept():
+    """Hashes written by the MethodSpec of eval/trials.py before the fields were added (computed
+    with that code): a store made then must find its trials now."""
+    assert MethodSpec().config_hash == "7687d79a15"
+    assert MethodSpec(method="base").config_hash == "85d6a51ef6"
+    assert MethodSpec(k=5, rounds=1, knobs="clean").config_hash == "d7489a2d17"
+    assert MethodSpec(method="random", k=4, render="fast").config_hash == "259cb3eb85"
+
+
+def test_new_settings_enter_the_hash_only_when_set():
+    plain = MethodSpec()
+    assert MethodSpec(check_every=20, subplan_budget=200, mismatch=None).config_hash == plain.config_hash
+    assert MethodSpec(mismatch=(1.3, 0.8, 1.2)).config_hash != plain.config_hash
+    assert MethodSpec(subplan_budget=120).config_hash != plain.config_hash
+    # where a model runs is not what it is
+    assert MethodSpec(policy="remote", port=9000).config_hash == MethodSpec(policy="remote", port=8001).config_hash
+    assert MethodSpec(policy="remote").config_hash != plain.config_hash
+    assert MethodSpec(mismatch=(1.3, 0.8, 1.2)).label == "seal[mismatch=1.3/0.8/1.2]"
+
+
+def test_parse_methods_takes_every_option():
+    (m,) = parse_methods("seal:mismatch=1.3/0.8/1.2:check_every=30", policy="remote", port=9100, prompt="subplan")
+    assert (m.mismatch, m.check_every, m.policy, m.port, m.prompt) == ((1.3, 0.8, 1.2), 30, "remote", 9100, "subplan")
+    assert parse_mismatch("1.3,0.8,1.2") == (1.3, 0.8, 1.2) and parse_mismatch("") is None
+    for bad in ("abc", "1,2", "1,2,3,4"):
+        with pytest.raises(InvalidInput, match="three numbers"):
+            parse_mismatch(bad)
+    with pytest.raises(InvalidInput, match=r"mismatch friction=20.0 must be a factor in \[0.1, 10\]"):
+        MethodSpec(mismatch=(20.0, 1.0, 1.0))
+
+
+def test_registries_name_the_valid_choices():
+    from seal.policies import make_policy
+    from seal.steer.scoring import make_scorer
+    from seal.verify import make_verifier
+
+    with pytest.raises(InvalidInput, match="unknown policy 'vla'; valid: scripted, remote"):
+        make_policy("vla", MethodSpec(), None)
+    with pytest.raises(InvalidInput, match="unknown verifier 'clip'; valid: oracle, openai, gemini, noisy"):
+        make_verifier("clip")
+    with pytest.raises(InvalidInput, match="unknown scorer 'q'; valid: value"):
+        make_scorer("q", "x")
+    with pytest.raises(InvalidInput, match="unknown policy 'vla'; valid: scripted, remote"):
+        MethodSpec(policy="vla")
+    noisy = make_verifier("noisy", false_positive=0.5, seed=1)
+    assert type(noisy).__name__ == "NoisyVerifier" and type(noisy.inner).__name__ == "OracleVerifier"
+
+
+# ---- the CLI: bad values end in `seal: error:` and exit 2 --------------------------------------
+@pytest.mark.parametrize("argv,words", [
+    (["run", "--mismatch", "abc"], "--mismatch wants three numbers"),
+    (["run", "--mismatch", "1.3,0.8"], "--mismatch wants three numbers"),
+    (["run", "--k", "x"], "argument --k: invalid int value"),
+    (["run", "--policy", "vla"], "unknown policy 'vla'"),
+    (["run", "--method", "value"], "needs a trained V-GPS checkpoint"),
+    (["eval", "--db", "{db}", "--tasks", "0,x"], "--tasks must be comma-separated task ids"),
+    (["eval", "--db", "{db}", "--tasks", "0,10"], "unknown task id 10"),
+    (["eval", "--db", "{db}", "--methods", "seal:k=x"], "k='x' is not a int"),
+    (["eval", "--db", "{db}", "--methods", "seal:kk=2"], "bad method option 'kk=2'"),
+    (["eval", "--db", "{db}", "--methods", "seal:mismatch=1/2"], "three numbers"),
+    (["eval", "--db", "{db}", "--methods", "vgps"], "unknown method 'vgps'; valid: base, random, value, seal"),
+    (["eval", "--db", "{db}", "--mismatch", "1,1,x"], "--mismatch wants three numbers"),
+    (["demos", "record", "--out", "{db}", "--tasks", "a"], "--tasks must be comma-separated task ids"),
+])
+def test_bad_values_are_reported_not_raised(argv, words, tmp_path, capsys):
+    db = tmp_path / "r.db"
+    code = _exit_code(lambda: main([a.replace("{db}", str(db)) for a in argv]))
+    err = capsys.readouterr().err
+    assert code == 2 and "seal: error:" in err and words in err and "Traceback" not in err, err
+    assert not db.exists()  # nothing was started
+
+
+def _exit_code(call) -> int:
+    try:
+        return call()
+    except SystemExit as exc:  # argparse's own errors exit from inside parse_args
+        return exc.code
+
+
+def test_run_and_eval_accept_the_same_method_options():
+    from seal.cli import build_parser
+
+    sub = build_parser()._subparsers._group_actions[0].choices
+    flags = {name: {o for a in sub[name]._actions for o in a.option_strings} for name in ("run", "eval")}
+    method_flags = {f for f in flags["run"] if f not in ("--suite", "--task", "--init", "--method", "--seed",
+                                                         "--no-video", "--out", "-h", "--help")}
+    assert "--policy" in method_flags and "--mismatch" in method_flags and "--planner" in method_flags
+    assert method_flags <= flags["eval"], method_flags - flags["eval"]
+
+
+# ---- the same method through `seal run`, `seal eval` and plug-ins ------------------------------
+BOOK = ("libero_10", 5)  # two sub-plans, ~90 steps: the quickest LIBERO-10 task
+
+
+def _rows(db: Path) -> list:
+    from seal.eval.store import ResultStore
+
+    with ResultStore(db, create=False) as store:
+        return store.rows()
+
+
+def _decisions(trace: Path) -> list[tuple]:
+    """What the loop decided, without clock times or snapshot ids."""
+    out = []
+    for e in map(json.loads, trace.read_text().splitlines()):
+        verdict = e.get("verdict") or {}
+        out.append((e["event"], e.get("slot"), e.get("round"), e.get("steps"), e.get("ended_by"), e.get("text"),
+                    verdict.get("success"), e.get("success")))
+    return out
+
+
+def test_run_and_eval_give_the_same_trial(tmp_path, capsys):
+    """`seal run` with a trial's init state and seed == that trial's `seal eval` row and trace."""
+    suite, task = BOOK
+    seed = trial_seed(suite, task, 0)
+    options = ["--k", "2", "--knobs", "misaligned", "--max-steps", str(SHORT)]
+    assert main(["run", "--suite", suite, "--task", str(task), "--init", "0", "--seed", str(seed), "--method", "seal",
+                 "--out", str(tmp_path / "run"), "--no-video", "--no-grids", *options]) == 0
+    ran = json.loads((tmp_path / "run" / "summary.json").read_text())
+    db = tmp_path / "r.db"
+    assert main(["eval", "--suite", suite, "--tasks", str(task), "--trials", "1", "--methods", "seal", "--db", str(db),
+                 "--out", str(tmp_path / "eval"), "--video", "none", "--no-grids", *options]) == 0
+    (row,) = _rows(db)
+    assert row.status == "ok" and row.seed == seed and row.init_index == 0
+    assert (row.success, row.steps, row.rounds, row.verifier_calls, row.fallbacks) == \
+        (ran["success"], ran["steps"], ran["rounds"], ran["verifier_calls"], ran["fallbacks"])
+    assert row.subplans == ran["subplans"] and row.goal_status == ran["goal_status"]
+    assert _decisions(Path(row.trace_path)) == _decisions(Path(ran["trace"]))
+    assert ran["steps"] > 0 and any(d[0] == "commit" for d in _decisions(Path(ran["trace"])))
+
+
+def test_eval_with_a_physics_mismatch(tmp_path):
+    """`seal eval --mismatch`: its own method in the store, and the pool really runs that physics."""
+    from seal.eval.execute import RunOptions, TrialRunner
+    from seal.eval.trials import expand
+
+    db = tmp_path / "r.db"
+    assert main(["eval", "--suite", BOOK[0], "--tasks", str(BOOK[1]), "--trials", "1", "--methods", "base,seal",
+                 "--k", "2", "--mismatch", "1.3,0.8,1.2", "--max-steps", str(SHORT), "--db", str(db), "--video", "none",
+                 "--out", str(tmp_path / "runs")]) == 0
+    rows = _rows(db)
+    assert sorted(r.method for r in rows) == ["base[mismatch=1.3/0.8/1.2]", "seal[k=2,mismatch=1.3/0.8/1.2]"]
+    assert all(r.status == "ok" and r.steps > 0 for r in rows), [r.error for r in rows]
+    # The worker's pool is built with the mismatch (and a plain method gets a plain pool).
+    (spec,) = expand(parse_methods("base", mismatch=(1.3, 0.8, 1.2)), [BOOK[0]], [BOOK[1]], trials=1)
+    runner = TrialRunner(RunOptions(out_dir=str(tmp_path / "direct"), video="none", max_steps=10))
+    try:
+        pool = runner._pool_for(spec, 1)
+        assert pool.physics is not None and (pool.physics.friction, pool.physics.mass) == (1.3, 0.8)
+        (plain,) = expand(parse_methods("base"), [BOOK[0]], [BOOK[1]], trials=1)
+        assert runner._pool_for(plain, 1).physics is None
+    finally:
+        runner.close()
+
+
+def test_eval_with_a_remote_policy(tmp_path):
+    """`seal eval --methods seal --policy remote`: the trials' policy is a `seal serve` process."""
+    from seal.serving.server import ServerProcess
+
+    db = tmp_path / "r.db"
+    with ServerProcess(["--knobs", "misaligned"]) as server:
+        code = main(["eval", "--suite", BOOK[0], "--tasks", str(BOOK[1]), "--trials", "1", "--methods", "seal",
+                     "--policy", "remote", "--port", str(server.port), "--k", "2", "--max-steps", str(SHORT),
+                     "--db", str(db), "--video", "none", "--no-grids", "--out", str(tmp_path / "runs")])
+    assert code == 0
+    (row,) = _rows(db)
+    assert row.status == "ok", row.error
+    assert row.method == "seal[k=2,policy=remote]" and row.steps > 0 and row.verifier_calls > 0
