@@ -129,7 +129,6 @@ def test_tiny_run_end_to_end_and_resume(tmp_path):
 
 def test_value_method_runs_with_a_trained_checkpoint(tmp_path):
     """V-GPS in the harness: the checkpoint's bytes name the method; the trial runs for real."""
-    pytest.importorskip("torch")
     from test_train_value import _bandit
 
     from seal.train.vgps import IQLConfig, train_value
@@ -193,7 +192,6 @@ def test_resume_after_killing_the_run(tmp_path):
 
 
 def test_ray_backend_on_a_local_cluster(tmp_path):
-    pytest.importorskip("ray")
     methods = [MethodSpec(method="base")]
     options = RunOptions(out_dir=str(tmp_path / "runs"), video="none", max_steps=SHORT)
     local = run_eval(str(tmp_path / "local.db"), methods, ["libero_10"], [0], 2, options=options)

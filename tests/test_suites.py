@@ -181,7 +181,7 @@ EXPERT_FAILS = {2: "tall orange juice blocks the basket", 3: "tall milk blocks t
 
 @pytest.mark.slow
 @pytest.mark.parametrize("task_id", [
-    pytest.param(t, marks=pytest.mark.xfail(reason=EXPERT_FAILS[t], strict=False)) if t in EXPERT_FAILS else t
+    pytest.param(t, marks=pytest.mark.xfail(reason=EXPERT_FAILS[t], strict=True)) if t in EXPERT_FAILS else t
     for t in range(len(COMPOSITION))])
 def test_clean_expert_solves_composition_task(task_id):
     from seal.episode import run_policy_episode

@@ -11,7 +11,7 @@ from _annotate_data import make_v21, synthetic_episode
 from seal.cli import main
 from seal.errors import InvalidInput
 
-torch = pytest.importorskip("torch")
+import torch  # noqa: E402  (a test extra: a missing torch is a broken install, not a skip)
 
 from seal.train.pipeline import split_episodes  # noqa: E402
 from seal.train.transitions import Transitions, episode_transitions  # noqa: E402
