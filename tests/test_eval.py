@@ -209,16 +209,17 @@ def test_store_migrates_an_older_schema(tmp_path):
     db = tmp_path / "r.db"
     with ResultStore(db) as store:
         store.add(TrialRow(method="base", config_hash="h", suite="libero_10", task=0, trial=0, init_index=0, seed=0))
-    con = sqlite3.connect(db)  # make it look like a v1 file (before policy_s existed)
-    con.execute("ALTER TABLE trials DROP COLUMN policy_s")
+    con = sqlite3.connect(db)  # make it look like a v1 file (before policy_s and the verifier-error columns)
+    for column in ("policy_s", "verifier_errors", "verifier_unavailable"):
+        con.execute(f"ALTER TABLE trials DROP COLUMN {column}")
     con.execute("UPDATE seal_meta SET value = '1' WHERE key = 'schema_version'")
     con.commit()
     con.close()
     with ResultStore(db) as store:
         (row,) = store.rows()
-    assert row.policy_s == 0.0
+    assert row.policy_s == 0.0 and row.verifier_errors == 0 and row.verifier_unavailable is False
     con = sqlite3.connect(db)
-    assert con.execute("SELECT value FROM seal_meta WHERE key = 'schema_version'").fetchone()[0] == "2"
+    assert con.execute("SELECT value FROM seal_meta WHERE key = 'schema_version'").fetchone()[0] == "3"
     con.close()
 
 

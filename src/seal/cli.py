@@ -49,7 +49,8 @@ def _cmd_run(args) -> int:
         if policy is not None:
             policy.close()
     keys = ("task", "method", "init_index", "success", "sim_error", "steps", "wall_s", "subplans", "goal_status",
-            "verifier_calls", "rounds", "fallbacks", "divergence", "timing", "trace")
+            "verifier_calls", "verifier_errors", "verifier_unavailable", "rounds", "fallbacks", "divergence",
+            "timing", "trace")
     print(json.dumps({k: getattr(result, k) for k in keys}, indent=2))
     return 0
 
@@ -172,6 +173,11 @@ def _cmd_eval(args) -> int:
         summary = run_eval(args.db, methods, suites, tasks, args.trials, options=options, backend=args.backend,
                            workers=args.workers, address=args.address, on_row=on_row)
     print(json.dumps(summary.__dict__))
+    for method, n in summary.verifier_errors.items():
+        if n:
+            print(f"seal: warning: {method}: {n} verification(s) got no answer (verifier errors past their "
+                  f"retries); {summary.verifier_unavailable[method]} trial(s) mostly unverified. See `seal report`.",
+                  file=sys.stderr)
     return 0
 
 

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from seal.errors import InvalidInput, VerifierUnavailable
 from seal.eval.store import TrialRow
 from seal.eval.trials import TrialSpec
 
@@ -65,6 +66,9 @@ class TrialRunner:
             self._run(spec, out, row)
         except KeyboardInterrupt:
             raise
+        except VerifierUnavailable as exc:  # no verdict will ever come: the run must stop, not go on unverified
+            row.status, row.success, row.fatal = "error", False, str(exc)
+            row.error = traceback.format_exc()
         except Exception:
             row.status, row.success = "error", False
             row.error = traceback.format_exc()
@@ -110,9 +114,12 @@ class TrialRunner:
         scorer = self._scorer(m.value_ckpt) if m.method == "value" else None
         pool = self._pool_for(spec, config.effective_k)
         policy = expert_policy(pool.task, FailureKnobs.named(m.knobs), seed=spec.seed)
-        verifier = None if m.method != "seal" else make_verifier(
-            m.verifier, model=m.model, false_positive=m.false_positive, false_negative=m.false_negative,
-            seed=spec.seed)
+        try:
+            verifier = None if m.method != "seal" else make_verifier(
+                m.verifier, model=m.model, false_positive=m.false_positive, false_negative=m.false_negative,
+                seed=spec.seed)
+        except InvalidInput as exc:  # e.g. no API key: every trial would fail the same way
+            raise VerifierUnavailable(f"cannot build the {m.verifier!r} verifier: {exc}") from None
         out.mkdir(parents=True, exist_ok=True)
         eval_world = LiberoWorld(pool.task, render_mode=m.render) if m.mode == "replay" else None
         try:
@@ -128,6 +135,7 @@ class TrialRunner:
         row.policy_s = round(result.timing.get("sampling_s", 0.0), 3)
         row.verify_wait_s = round(result.timing.get("verify_wait_s", 0.0), 3)
         row.verifier_calls, row.rounds, row.fallbacks = result.verifier_calls, result.rounds, result.fallbacks
+        row.verifier_errors, row.verifier_unavailable = result.verifier_errors, result.verifier_unavailable
         row.input_tokens, row.output_tokens = result.input_tokens, result.output_tokens
         row.cost_usd = result.cost_usd
         row.subplans, row.goal_status = result.subplans, result.goal_status

@@ -3,6 +3,18 @@
 The loop itself is synchronous (it waits on pool workers); verifications are coroutines
 (HTTP calls to a VLM, or an instant oracle check). A private event loop on its own thread
 runs them, and the loop polls plain `concurrent.futures.Future`s - no async leaks upward.
+
+Failures are sorted here, so that none passes silently:
+
+- permanent (`seal.errors.VerifierUnavailable`: a wrong key, model or URL, a server that is down)
+  stays an exception; the loop re-raises it when it reads the future, which stops the run with
+  the reason (a run of "execute candidate 0" labelled as a verified method would be worse);
+- transient (an unknown verdict whose ``extra["error"]`` says the service failed past its
+  retries, or a ConnectionError/TimeoutError raised by a verifier) is an unknown verdict, and
+  counted: ``errors`` out of ``calls``, so the episode's result can say how much of it ran
+  unverified;
+- anything else a verifier raises is a bug: it propagates like a permanent error (in `seal eval`
+  the trial becomes an error row with its traceback).
 """
 
 from __future__ import annotations
@@ -12,7 +24,11 @@ import threading
 import time
 from concurrent.futures import Future
 
+from seal.errors import VerifierUnavailable
 from seal.verify.base import Verdict, VerifyRequest
+
+# Exceptions a verifier may raise that are worth no more than an unknown verdict.
+TRANSIENT = (ConnectionError, TimeoutError, asyncio.TimeoutError)
 
 
 class BackgroundVerifier:
@@ -21,9 +37,19 @@ class BackgroundVerifier:
         self._loop = asyncio.new_event_loop()
         self._thread = threading.Thread(target=self._loop.run_forever, name="seal-verify", daemon=True)
         self._thread.start()
+        # Written on the verifier thread only; read by the loop once the episode is over.
+        self.calls = 0  # verifications that finished, with an answer or an error
+        self.errors = 0  # ...that ended with no answer: the verifier was unavailable for them
+        self.last_error = ""
+
+    @property
+    def mostly_unavailable(self) -> bool:
+        """More than half of this episode's finished verifications got no answer."""
+        return self.errors * 2 > self.calls
 
     def submit(self, request: VerifyRequest) -> Future:
-        """Start verifying now; the future resolves to a `Verdict` (exceptions become unknown)."""
+        """Start verifying now; the future resolves to a `Verdict` (a transient failure is an
+        unknown verdict with ``extra["error"]``) or raises a permanent error."""
         return asyncio.run_coroutine_threadsafe(self._run(request), self._loop)
 
     async def _run(self, request: VerifyRequest) -> Verdict:
@@ -32,8 +58,15 @@ class BackgroundVerifier:
             verdict = await self.verifier.verify(request)
         except asyncio.CancelledError:
             raise
-        except Exception as exc:  # a verifier failure must not end the episode
-            verdict = Verdict(None, f"unknown: verifier error {type(exc).__name__}: {exc}")
+        except VerifierUnavailable:
+            raise
+        except TRANSIENT as exc:  # one flaky call must not end the episode; it is counted below
+            why = f"{type(exc).__name__}: {exc}"
+            verdict = Verdict(None, f"unknown: verifier error {why}", extra={"error": why})
+        self.calls += 1
+        if verdict.success is None and verdict.extra.get("error"):
+            self.errors += 1
+            self.last_error = str(verdict.extra["error"])
         verdict.extra.setdefault("wall_s", time.perf_counter() - start)
         return verdict
 

@@ -122,6 +122,8 @@ class SteerResult:
     cost_usd: float = 0.0
     rounds: int = 0
     fallbacks: int = 0
+    verifier_errors: int = 0  # verifications that got no answer (transient errors past their retries)
+    verifier_unavailable: bool = False  # ...and they were most of this episode's verifications
     divergence: list[float] = field(default_factory=list)  # replay mode: per commit, max |qpos| gap
     timing: dict = field(default_factory=lambda: {"sampling_s": 0.0, "predict_s": 0.0, "verify_wait_s": 0.0})
     executed_actions: list = field(default_factory=list)
@@ -194,12 +196,16 @@ class Steerer:
         finally:
             if background is not None:
                 background.close()
+                result.verifier_errors = background.errors
+                result.verifier_unavailable = background.mostly_unavailable
         status = pool.check([str(a) for a in self._goal_atoms()], slots=[0])[0]
         result.goal_status = status
         result.success = bool(status) and all(status.values()) and not result.sim_error
         result.steps = committed.steps
         result.wall_s = round(time.perf_counter() - start, 3)
-        self._emit("episode_end", success=result.success, steps=result.steps, sim_error=result.sim_error)
+        self._emit("episode_end", success=result.success, steps=result.steps, sim_error=result.sim_error,
+                   verifier_calls=result.verifier_calls, verifier_errors=result.verifier_errors,
+                   verifier_unavailable=result.verifier_unavailable, fallbacks=result.fallbacks)
         return result
 
     # ---- one sub-plan: rounds of K candidates --------------------------------------------------
@@ -464,4 +470,4 @@ def _verdict_dict(v: Verdict | None) -> dict | None:
     if v is None:
         return None
     return {"success": v.success, "rationale": v.rationale, "latency_s": round(v.latency_s, 4),
-            "score": v.score, "cached": bool(v.extra.get("cached", False))}
+            "score": v.score, "cached": bool(v.extra.get("cached", False)), "error": v.extra.get("error")}
