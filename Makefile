@@ -32,6 +32,6 @@ test: install
 
 # The long tests kept out of `make test` (marked slow): full expert episodes (microwave, books,
 # ketchup, every composition task) and the checks of every task of every derived suite.
-# ~TBD min on the 2-core development machine (docs/performance.md, "Slow tests").
+# ~7 min (410 s) on the 2-core development machine (docs/performance.md, "Slow tests").
 test-slow: install
 	$(BIN)/python -m pytest -q -m slow
