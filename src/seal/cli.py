@@ -446,7 +446,11 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--ks", default="", help="runtime: comma-separated K values (default 1,2,4,8,10)")
     bench.add_argument("--latency", type=float, default=2.0, help="runtime: fixed verifier latency in seconds")
     bench.add_argument("--tasks", default="", help="comma-separated task ids (expert: all; steer: 0,1,7; runtime: 5)")
-    bench.add_argument("--trials", type=int, default=50, help="expert/steer/runtime: trials (init states) per task; serve: round trips")
+    bench.add_argument("--trials", type=int, default=None,
+                       help="expert/steer/runtime: trials (init states) per task (default 50); eval: trials per "
+                            "task (default 3); serve: round trips (default 50)")
+    bench.add_argument("--max-steps", type=int, default=None,
+                       help="steer/runtime/eval: control steps per episode (default: the suite's limit)")
     bench.add_argument("--no-misaligned", action="store_true", help="expert: skip the misaligned setting")
     bench.add_argument("--first-init", type=int, default=0,
                        help="expert: first official init state (trials run first-init .. first-init+trials-1)")
