@@ -99,6 +99,7 @@ def test_bench_annotate(capsys, tmp_path):
     _positive(out, "episodes_per_s")
     assert _fraction(out["agreement"]) and _fraction(out["plan_count_agreement"])
     assert out["frame_err_mean"] >= 0 and out["cost_usd"] == 0
+    assert out["agreement_is"].startswith("by construction")  # the offline 1.0 is not a measurement
 
 
 def test_bench_value(capsys, tmp_path):
