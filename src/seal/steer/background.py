@@ -22,7 +22,7 @@ from __future__ import annotations
 import asyncio
 import threading
 import time
-from concurrent.futures import Future
+from concurrent.futures import CancelledError, Future
 
 from seal.errors import VerifierUnavailable
 from seal.verify.base import Verdict, VerifyRequest
@@ -72,6 +72,13 @@ class BackgroundVerifier:
 
     def close(self) -> None:
         if self._loop.is_running():
+            # Cancel what is still in flight (an early exit, or a run stopped by a permanent error)
+            # so no verification is left half-done in a loop that is about to close.
+            done = asyncio.run_coroutine_threadsafe(_cancel_pending(), self._loop)
+            try:
+                done.result(timeout=5)
+            except (TimeoutError, CancelledError):
+                pass  # a verifier that ignores cancellation for 5 s is abandoned with its loop
             self._loop.call_soon_threadsafe(self._loop.stop)
             self._thread.join(timeout=5)
         if not self._loop.is_running():
@@ -82,3 +89,10 @@ class BackgroundVerifier:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+async def _cancel_pending() -> None:
+    tasks = [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]
+    for t in tasks:
+        t.cancel()
+    await asyncio.gather(*tasks, return_exceptions=True)
