@@ -102,13 +102,12 @@ def test_bench_annotate(capsys, tmp_path):
     assert out["agreement_is"].startswith("by construction")  # the offline 1.0 is not a measurement
 
 
-def test_bench_value(capsys, tmp_path):
-    make_v21(tmp_path / "ds", [120] * 6)  # enough chunk transitions for one training batch of 128
-    out = _bench(capsys, "value", "--k", "4", "--dataset", str(tmp_path / "ds"), "--steps", "5")
+def test_bench_value(capsys):
+    # The default invocation (no --dataset): training speed and the per-step scoring cost. The
+    # --dataset path is `seal train value`'s pipeline, checked in test_train_value.py.
+    out = _bench(capsys, "value", "--k", "4")
     _positive(out, "updates_per_s", "score_ms_k4")
-    assert out["train_steps"] == 5 and out["train_transitions"] > 0
-    held = out["heldout"]
-    assert held["transitions"] > 0 and -1 <= held["return_spearman"] <= 1 and _fraction(held["goal_accuracy"])
+    assert "heldout" not in out
 
 
 def test_bench_eval_runs_fifty_trials_when_asked(capsys, monkeypatch):
