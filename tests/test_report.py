@@ -313,7 +313,7 @@ def test_verifier_errors_are_a_column_a_warning_and_a_mark(report, tmp_path):
 
     md = paths.markdown.read_text()
     assert "Warning: 6 verification(s) in 2 trial(s) got no answer" in md
-    assert "1 trial(s) had the verifier unavailable for most" in md
+    assert "1 trial(s) had the verifier unavailable in most of their rounds" in md
     assert "verifier errors" in md and "trials mostly unverified" in md and "fallbacks / trial" in md
     runtime = list(csv.DictReader((tmp_path / "out" / "csv" / "runtime.csv").read_text().splitlines()))
     assert (runtime[0]["verifier_errors"], runtime[0]["trials_mostly_unverified"]) == ("6", "1")

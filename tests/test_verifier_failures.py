@@ -8,7 +8,7 @@ What must hold:
 - a rejected candidate is never executed, and rejections change what runs (another round);
 - without a pass, the fallback runs: more rounds, then the best score, then the first candidate;
 - a verifier that fails past its retries mid-episode is counted (trace, result) and the trial is
-  marked when most of its verifications got no answer;
+  marked when, in most of its rounds, the verifier never answered;
 - a permanent error (401, or nothing listening at the URL) stops the run with the reason.
 """
 
@@ -202,7 +202,8 @@ PART_OF_PLACE = 70
 
 def test_verifier_failing_mid_episode_is_counted_and_marked(pool, vlm, tmp_path):
     """Answers the pick sub-plan, then only 503s: the episode goes on by fallback, and the errors
-    are counted in the result and the trace; most verifications failed, so the trial is marked."""
+    are counted in the result and the trace; two rounds of three got no answer at all, so the
+    trial is marked."""
     fake = vlm(lambda step, n: (200, SUCCESS) if step == PICK else (503, ""))
     config = SteerConfig(method="seal", k=4, rounds=2, seed=1, max_steps=PART_OF_PLACE)
     result, trace = _steer(pool, config, _verifier(fake), tmp_path, knobs=FailureKnobs())
@@ -239,16 +240,26 @@ class Flaky:
         return Verdict(True, "ok")
 
 
-@pytest.mark.parametrize("failing,raises,mostly", [({2}, False, False), ({1, 2}, False, True),
-                                                   ({1, 3}, True, True)])
-def test_the_mark_means_most_verifications_got_no_answer(failing, raises, mostly):
+@pytest.mark.parametrize("rounds,raises,mostly", [
+    ([[2]], False, False),  # one round, one of three calls unanswered: that round was verified
+    ([[1, 2, 3], [], []], False, False),  # one round of three without any answer
+    ([[1, 2, 3], [1, 2, 3], []], False, True),  # two of three
+    ([[1, 2, 3]], True, True),  # ConnectionErrors raised by the verifier count the same
+])
+def test_the_mark_means_the_verifier_never_answered_in_most_rounds(rounds, raises, mostly):
+    """Three verifications per round; the listed ones (1-based within the round) get no answer."""
     from seal.steer.background import BackgroundVerifier
     from seal.verify.base import VerifyRequest
 
+    failing = {3 * r + i for r, calls in enumerate(rounds) for i in calls}
     with BackgroundVerifier(Flaky(failing, raises)) as background:
-        verdicts = [background.submit(VerifyRequest(subplan="s", instruction="i")).result(5) for _ in range(3)]
-    assert [v.success for v in verdicts] == [None if i + 1 in failing else True for i in range(3)]
-    assert (background.calls, background.errors, background.mostly_unavailable) == (3, len(failing), mostly)
+        verdicts = []
+        for _ in rounds:
+            background.start_round()
+            verdicts += [background.submit(VerifyRequest(subplan="s", instruction="i")).result(5) for _ in range(3)]
+    assert [v.success for v in verdicts] == [None if i + 1 in failing else True for i in range(len(verdicts))]
+    assert (background.calls, background.errors) == (3 * len(rounds), len(failing))
+    assert background.mostly_unavailable is mostly
     if raises:  # a ConnectionError raised by a verifier is transient too, with its reason kept
         assert "ConnectionResetError: peer reset" in verdicts[0].extra["error"]
 

@@ -91,7 +91,7 @@ class TrialRow:
     rounds: int = 0
     fallbacks: int = 0
     verifier_errors: int = 0  # verifications that got no answer (transient errors past their retries)
-    verifier_unavailable: bool = False  # ...most of the trial's verifications: its result is mostly unverified
+    verifier_unavailable: bool = False  # in most rounds no verification got an answer: mostly unverified
     subplans: list = field(default_factory=list)
     goal_status: dict = field(default_factory=dict)
     trace_path: str = ""

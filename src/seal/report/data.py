@@ -153,7 +153,7 @@ class ReportData:
         mostly = sum(r.verifier_unavailable for r in trouble)
         return (f"Warning: {calls} verification(s) in {len(trouble)} trial(s) got no answer from the verifier "
                 f"(errors that outlasted the retries; the loop fell back to unverified candidates there). "
-                f"{mostly} trial(s) had the verifier unavailable for most of their verifications: their results "
+                f"{mostly} trial(s) had the verifier unavailable in most of their rounds (no answer at all): their results "
                 f"say little about the verified method. See the table 'Verifier errors'.")
 
     # ---- files -----------------------------------------------------------------------------

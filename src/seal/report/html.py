@@ -203,7 +203,7 @@ def write_episode(data: ReportData, row: TrialRow, out_dir: Path, media: MediaPl
     if row.verifier_errors or row.verifier_unavailable:
         parts.append(f'<p class="warn">{row.verifier_errors} of {row.verifier_calls} verification(s) got no '
                      f"answer from the verifier (errors past the retries)"
-                     f"{'; the verifier was unavailable for most of this trial, so its result is mostly unverified' if row.verifier_unavailable else ''}"
+                     f"{'; in most rounds the verifier never answered, so this result is mostly unverified' if row.verifier_unavailable else ''}"
                      ".</p>")
     if row.status == "error":
         parts.append(f"<h2>Traceback</h2><pre>{esc(row.error)}</pre>")

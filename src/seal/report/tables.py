@@ -238,7 +238,7 @@ class RuntimeRow:
     cost_usd: float
     fallbacks: int = 0  # sub-plans where no candidate passed and the fallback chose
     verifier_errors: int = 0  # verifications with no answer
-    unverified_trials: int = 0  # trials whose verifier was unavailable for most verifications
+    unverified_trials: int = 0  # trials whose verifier never answered in most of their rounds
 
     def per_trial(self, total: float) -> float:
         return total / self.trials if self.trials else math.nan
@@ -277,8 +277,8 @@ def runtime_display(rows: list[RuntimeRow]) -> Table:
              "step = total wall time / total executed env steps. sim = time stepping the simulator for "
              "candidates; verify wait = time blocked on verdicts. fallbacks = sub-plans where no candidate "
              "passed and the best-scored (else the first) candidate was executed; verifier errors = "
-             "verifications that got no answer after every retry; trials mostly unverified = trials where "
-             "those were more than half of the verifications.")]
+             "verifications that got no answer after every retry; trials mostly unverified = trials where, "
+             "in more than half of the sampling rounds that asked the verifier, no verification got an answer.")]
     return Table("Runtime per method configuration", headers, body, set(), notes, left=1)
 
 

@@ -11,8 +11,9 @@ Failures are sorted here, so that none passes silently:
   the reason (a run of "execute candidate 0" labelled as a verified method would be worse);
 - transient (an unknown verdict whose ``extra["error"]`` says the service failed past its
   retries, or a ConnectionError/TimeoutError raised by a verifier) is an unknown verdict, and
-  counted: ``errors`` out of ``calls``, so the episode's result can say how much of it ran
-  unverified;
+  counted: ``errors`` out of ``calls``, and per round (`start_round`): a round whose finished
+  verifications all got no answer was decided without the verifier, and an episode where most
+  such rounds were is ``mostly_unavailable``;
 - anything else a verifier raises is a bug: it propagates like a permanent error (in `seal eval`
   the trial becomes an error row with its traceback).
 """
@@ -41,18 +42,29 @@ class BackgroundVerifier:
         self.calls = 0  # verifications that finished, with an answer or an error
         self.errors = 0  # ...that ended with no answer: the verifier was unavailable for them
         self.last_error = ""
+        self._round = 0
+        self._rounds: dict[int, list[bool]] = {}  # round -> answered? per finished verification
+
+    def start_round(self) -> None:
+        """Verifications submitted from now on belong to a new sampling round."""
+        self._round += 1
+
+    @property
+    def rounds_unavailable(self) -> int:
+        """Rounds with verifications, none of which got an answer."""
+        return sum(not any(answers) for answers in self._rounds.values())
 
     @property
     def mostly_unavailable(self) -> bool:
-        """More than half of this episode's finished verifications got no answer."""
-        return self.errors * 2 > self.calls
+        """In more than half of the rounds that asked the verifier, it never answered."""
+        return self.rounds_unavailable * 2 > len(self._rounds)
 
     def submit(self, request: VerifyRequest) -> Future:
         """Start verifying now; the future resolves to a `Verdict` (a transient failure is an
         unknown verdict with ``extra["error"]``) or raises a permanent error."""
-        return asyncio.run_coroutine_threadsafe(self._run(request), self._loop)
+        return asyncio.run_coroutine_threadsafe(self._run(request, self._round), self._loop)
 
-    async def _run(self, request: VerifyRequest) -> Verdict:
+    async def _run(self, request: VerifyRequest, round_: int = 0) -> Verdict:
         start = time.perf_counter()
         try:
             verdict = await self.verifier.verify(request)
@@ -64,7 +76,9 @@ class BackgroundVerifier:
             why = f"{type(exc).__name__}: {exc}"
             verdict = Verdict(None, f"unknown: verifier error {why}", extra={"error": why})
         self.calls += 1
-        if verdict.success is None and verdict.extra.get("error"):
+        answered = not (verdict.success is None and verdict.extra.get("error"))
+        self._rounds.setdefault(round_, []).append(answered)
+        if not answered:
             self.errors += 1
             self.last_error = str(verdict.extra["error"])
         verdict.extra.setdefault("wall_s", time.perf_counter() - start)

@@ -123,7 +123,7 @@ class SteerResult:
     rounds: int = 0
     fallbacks: int = 0
     verifier_errors: int = 0  # verifications that got no answer (transient errors past their retries)
-    verifier_unavailable: bool = False  # ...and they were most of this episode's verifications
+    verifier_unavailable: bool = False  # in most rounds that asked the verifier, it never answered
     divergence: list[float] = field(default_factory=list)  # replay mode: per commit, max |qpos| gap
     timing: dict = field(default_factory=lambda: {"sampling_s": 0.0, "predict_s": 0.0, "verify_wait_s": 0.0})
     executed_actions: list = field(default_factory=list)
@@ -277,6 +277,8 @@ class Steerer:
         k = cfg.effective_k
         pool.sync(committed)
         self.policy.begin(k)
+        if background is not None:
+            background.start_round()  # so a round decided without any verdict can be told apart
         now = time.perf_counter()
         cands = [Candidate(round=r, slot=i, snapshot=committed, t_start=now) for i in range(k)]
         obs = {i: obs0 for i in range(k)}
