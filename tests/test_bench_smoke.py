@@ -76,9 +76,10 @@ def test_bench_runtime_names_its_stand_in_verifier(capsys):
         assert r["sampling_ms"] + r["predict_ms"] + r["verify_ms"] <= r["total_ms"] * 1.01
 
 
-def test_bench_eval_honours_trials(capsys):
-    out = _bench(capsys, "eval", "--tasks", "5", "--trials", "2", "--k", "2", "--max-steps", "25")
-    assert (out["trials_per_task"], out["trials_run_base"], out["trials_run_seal"]) == (2, 2, 2)
+def test_bench_eval(capsys):
+    out = _bench(capsys, "eval", "--tasks", "5", "--trials", "1", "--k", "2", "--max-steps", "25")
+    assert (out["trials_per_task"], out["trials_run_base"], out["trials_run_seal"]) == (1, 1, 1)
+    assert out["ray_vs_local_trials_per_task"] == 2  # one trial for each of the two workers
     _positive(out, "trials_per_hour_base", "trials_per_hour_seal", "local_2w_s", "ray_2w_s", "ray_vs_local")
     assert _fraction(out["success_base"]) and _fraction(out["success_seal"])
     assert 0 < out["mean_steps_base"] <= 25 + 5 and 0 < out["mean_steps_seal"] <= 25 + 5
