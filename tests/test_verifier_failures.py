@@ -325,3 +325,27 @@ def test_cli_run_prints_the_reason_and_fails(vlm, monkeypatch, tmp_path, capsys)
     err = capsys.readouterr().err
     assert code == 2 and "HTTP 404" in err and "model name" in err
     assert not (tmp_path / "run" / "summary.json").exists()
+
+
+def test_eval_counts_transient_errors_per_trial_and_warns(vlm, monkeypatch, tmp_path, capsys):
+    """`seal eval` against a VLM that only answers 503: the trial runs on by fallback, its row counts
+    the verifications that got no answer and is marked, and the command's summary and stderr say so."""
+    from seal.cli import main
+
+    fake = vlm(lambda step, n: (503, ""))
+    monkeypatch.setenv("OPENAI_API_KEY", "sk-local")
+    monkeypatch.setenv("OPENAI_BASE_URL", f"{fake.url}/v1")  # what the spawned trial worker's SDK reads
+    db = tmp_path / "r.db"
+    code = main(["eval", "--suite", "libero_10", "--tasks", "5", "--trials", "1", "--methods", "seal",
+                 "--k", "2", "--rounds", "1", "--verifier", "openai", "--model", "fake-vlm", "--db", str(db),
+                 "--max-steps", "25", "--video", "none", "--no-grids"])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    summary = json.loads(captured.out.strip().splitlines()[-1])
+    (label,) = summary["verifier_errors"]
+    assert summary["verifier_errors"][label] == 2 and summary["verifier_unavailable"][label] == 1
+    assert "2 verification(s) got no answer" in captured.err and "1 trial(s) mostly unverified" in captured.err
+    with ResultStore(db) as store:
+        (row,) = store.rows()
+    assert row.status == "ok" and (row.verifier_calls, row.verifier_errors, row.verifier_unavailable) == (2, 2, True)
+    assert row.fallbacks == 1 and len(fake.asked) == 2 * 4  # two candidates, each tried 4 times (3 retries)
