@@ -37,13 +37,13 @@ def test_bench_sim(capsys):
     assert out["restore_max_abs_diff"] == 0.0  # exact restore is the point of the benchmark
     assert out["pool_k"] == 2 and out["pool_workers"] == 1
     # Render figures by prefix: the render part may report per size (render_ms_stock_<px>) and
-    # gain image-quality keys; every time must be positive and every PSNR above 5 dB (inf when two
-    # images are identical, which some comparisons may well be).
+    # gain image-quality keys; every time must be positive and every PSNR above 5 dB (None or inf
+    # stands for identical images, which a comparison with the LIBERO package's own frames may be).
     renders = [key for key in out if key.startswith("render_ms_")]
     assert any("stock" in key for key in renders) and any("fast" in key for key in renders), sorted(out)
     _positive(out, *renders)
     psnrs = [key for key in out if "psnr" in key]
-    assert psnrs and all(isinstance(out[key], (int, float)) and out[key] > 5 for key in psnrs), \
+    assert psnrs and all(out[key] is None or (isinstance(out[key], (int, float)) and out[key] > 5) for key in psnrs), \
         {key: out[key] for key in psnrs}
 
 
