@@ -262,9 +262,11 @@ def _chromium(*args: str, tmp: Path) -> subprocess.CompletedProcess:
     return subprocess.run(cmd, check=False, capture_output=True, text=True, timeout=90)
 
 
-@pytest.mark.skipif(CHROMIUM is None, reason="chromium not installed (Debian package `chromium`; "
-                    "`make install` installs it)")
 def test_html_report_in_headless_chromium(report, tmp_path):
+    # Fails rather than skips: `make install` installs Chromium (and stops if it cannot), so a
+    # missing browser is a broken install, and a skip here would hide the only real-browser check.
+    assert CHROMIUM is not None, ("chromium is not installed (Debian package `chromium`): run `make install`, "
+                                  "or `apt-get install chromium`")
     index = report.index_html
     shot = tmp_path / "index.png"
     res = _chromium(f"--screenshot={shot}", "--window-size=1280,1600", index.as_uri(), tmp=tmp_path)
@@ -283,3 +285,46 @@ def test_html_report_in_headless_chromium(report, tmp_path):
     assert "Grasped(soup) is true" in dom and "<video" in dom
     assert 'data-pwned="1"' not in dom and "<img src=\"x\"" not in dom
     assert "&lt;script&gt;document.body.setAttribute" in dom
+
+
+# ---- verifier errors ----------------------------------------------------------------------------
+def test_verifier_errors_are_a_column_a_warning_and_a_mark(report, tmp_path):
+    """A verifier that failed past its retries must show: per-trial counts, a warning on top of the
+    Markdown and the HTML, a marked episode page. The clean fixture report has no such warning."""
+    assert "verification(s)" not in report.markdown.read_text() and 'class="warn"' not in report.index_html.read_text()
+
+    db = tmp_path / "r.db"
+    runs = tmp_path / "r_runs"
+    trace, video = _write_trial_files(runs, SEAL, "libero_10", 0, 0)
+    events = [json.loads(line) for line in Path(trace).read_text().splitlines()]
+    events[1]["verdict"] = {"success": None, "rationale": "verifier unavailable after 4 attempt(s): HTTP 503",
+                            "latency_s": 2.0, "score": None, "cached": False, "error": "APIStatusError HTTP 503"}
+    Path(trace).write_text("".join(json.dumps(e) + "\n" for e in events))
+    with ResultStore(db) as store:
+        store.register_method(SEAL.config_hash, SEAL.label, SEAL.canonical())
+        common = dict(method=SEAL.label, config_hash=SEAL.config_hash, suite="libero_10", task=0, steps=100,
+                      wall_s=10.0)
+        store.add(TrialRow(**common, trial=0, init_index=0, seed=0, verifier_calls=6, verifier_errors=5,
+                           verifier_unavailable=True, fallbacks=2, trace_path=trace, video_path=video))
+        store.add(TrialRow(**common, trial=1, init_index=1, seed=1, verifier_calls=6, verifier_errors=1,
+                           fallbacks=0, success=True))
+        store.add(TrialRow(**common, trial=2, init_index=2, seed=2, verifier_calls=4, success=True))
+    paths = write_report(db, tmp_path / "out")
+
+    md = paths.markdown.read_text()
+    assert "Warning: 6 verification(s) in 2 trial(s) got no answer" in md
+    assert "1 trial(s) had the verifier unavailable in most of their rounds" in md
+    assert "verifier errors" in md and "trials mostly unverified" in md and "fallbacks / trial" in md
+    runtime = list(csv.DictReader((tmp_path / "out" / "csv" / "runtime.csv").read_text().splitlines()))
+    assert (runtime[0]["verifier_errors"], runtime[0]["trials_mostly_unverified"]) == ("6", "1")
+    assert float(runtime[0]["fallbacks_per_trial"]) == pytest.approx(2 / 3, abs=1e-3)
+    per_trial = list(csv.DictReader((tmp_path / "out" / "csv" / "verifier_errors.csv").read_text().splitlines()))
+    assert [(r["trial"], r["verifier_errors"], r["verifier_unavailable"]) for r in per_trial] == \
+        [("0", "5", "1"), ("1", "1", "0")]
+
+    index = paths.index_html.read_text()
+    assert 'class="warn" id="verifier-warning"' in index and "Verifier errors" in index
+    pages = {p: p.read_text() for p in paths.episodes}
+    marked = [p for p, text in pages.items() if "mostly unverified" in text]
+    assert len(marked) == 1 and "5 of 6 verification(s) got no answer" in pages[marked[0]]
+    assert "unknown: verifier error (APIStatusError HTTP 503)" in pages[marked[0]]

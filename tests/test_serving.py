@@ -16,6 +16,7 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 import numpy as np
 import pytest
 import websockets.sync.server as ws_sync_server
+from websockets.exceptions import ConnectionClosed
 from openpi_client import msgpack_numpy
 
 from seal.errors import InvalidInput
@@ -308,23 +309,29 @@ def test_vlm_planner_against_a_local_openai_compatible_server(obs):
 @contextmanager
 def rogue_server(on_request, metadata=None):
     """A real websocket server whose answers a test scripts: ``on_request(ws, request, state)``
-    returns bytes/str to send, None to send nothing, or "close" to drop the connection."""
-    state = {"connections": 0, "requests": 0, "release": threading.Event()}
+    returns bytes/str to send, None to send nothing, or "close" to drop the connection.
+    ``state["seen"]`` holds every request; anything ``on_request`` raises (a failed assertion
+    about a request) is re-raised when the block exits, so it fails the test."""
+    state = {"connections": 0, "requests": 0, "seen": [], "errors": [], "release": threading.Event()}
 
     def handler(ws):
         state["connections"] += 1
-        ws.send(msgpack_numpy.packb({} if metadata is None else metadata))
         try:
+            ws.send(msgpack_numpy.packb({} if metadata is None else metadata))
             for message in ws:
                 state["requests"] += 1
-                out = on_request(ws, msgpack_numpy.unpackb(message), state)
+                request = msgpack_numpy.unpackb(message)
+                state["seen"].append(request)
+                out = on_request(ws, request, state)
                 if out == "close":
                     ws.close()
                     return
                 if out is not None:
                     ws.send(out)
-        except Exception:  # the client went away; nothing to do
+        except ConnectionClosed:  # the client went away; nothing to do
             pass
+        except BaseException as exc:  # noqa: BLE001 - kept for the test thread, which re-raises it
+            state["errors"].append(exc)
 
     server = ws_sync_server.serve(handler, "127.0.0.1", 0)
     thread = threading.Thread(target=server.serve_forever, daemon=True)
@@ -335,6 +342,8 @@ def rogue_server(on_request, metadata=None):
         state["release"].set()
         server.shutdown()
         thread.join(5)
+    if state["errors"]:
+        raise state["errors"][0]
 
 
 def _plain_client(port, **kw) -> OpenpiPolicy:
@@ -360,7 +369,9 @@ def test_malformed_replies_are_named(obs, reply, message):
             r = policy.reason(obs)
             with pytest.raises(P.PolicyServerError, match=message):
                 policy.act([obs], r)
-            assert state["requests"] == 1  # openpi's four keys only, nothing of SEAL's
+    # One request, carrying openpi's four LIBERO keys and nothing of SEAL's (this server announced
+    # no SEAL extension, so the client must speak plain openpi to it).
+    assert [sorted(req) for req in state["seen"]] == [sorted([P.IMAGE, P.WRIST, P.STATE, P.PROMPT])]
     with rogue_server(lambda ws, req, st: GOOD) as (port, state, _):
         with _plain_client(port) as policy:
             assert policy.act([obs], policy.reason(obs))[0].actions.shape == (10, 7)

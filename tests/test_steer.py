@@ -1,5 +1,6 @@
 import asyncio
 
+import numpy as np
 import pytest
 
 from seal.errors import InvalidInput
@@ -103,21 +104,26 @@ def test_bad_steering_config():
         PhysicsMismatch(friction=0.0)
 
 
-class PreferLowGripperScorer:
-    """A real (if naive) scorer: prefers chunks that close the gripper. Exercises the V-GPS path."""
+class ConsensusScorer:
+    """A real (if naive) scorer: prefers the chunk closest to the mean of the K samples (a consensus
+    vote; the misaligned expert's action noise makes every sample, and so every score, different).
+    Exercises the V-GPS path."""
 
     needs_images = False
 
     def __init__(self):
         self.calls = []
+        self.scored = []  # (chunks, scores) per call, to check which one was executed
 
     def score(self, obs, chunks, goal):
         self.calls.append((chunks.shape, goal))
-        return chunks[:, :, 6].sum(axis=1)
+        scores = -np.linalg.norm((chunks - chunks.mean(axis=0)).reshape(len(chunks), -1), axis=1)
+        self.scored.append((chunks.copy(), scores))
+        return scores
 
 
 def test_value_method_executes_the_best_scored_chunk_each_step(pool, tmp_path):
-    scorer = PreferLowGripperScorer()
+    scorer = ConsensusScorer()
     config = SteerConfig(method="value", k=4, max_steps=30, value_goal="subplan")
     with Trace(tmp_path / "t.jsonl") as trace:
         result = Steerer(pool, expert_policy(BOOK, FailureKnobs.misaligned(), seed=2), None, config,
@@ -125,6 +131,17 @@ def test_value_method_executes_the_best_scored_chunk_each_step(pool, tmp_path):
     assert scorer.calls and all(shape[0] >= 3 and shape[1:] == (16, 7) for shape, _ in scorer.calls)
     assert {goal for _, goal in scorer.calls} == {"pick up the book"}
     assert result.steps == len(result.executed_actions) == 30
+    # Which chunk ran: at each call the executed 5 actions are the best-scored chunk's first five
+    # (clipped as the engine clips them), and never those of a worse-scored chunk that differs.
+    executed = np.asarray(result.executed_actions)
+    assert len(scorer.scored) == 6  # 30 steps = 6 executed chunks of 5
+    for i, (chunks, scores) in enumerate(scorer.scored):
+        ran = executed[5 * i: 5 * i + 5]
+        best = np.clip(chunks[int(np.argmax(scores))][:5], -1.0, 1.0)
+        np.testing.assert_array_equal(ran, best)
+        assert scores.max() > scores.min()  # the sampled chunks differ in score: the choice matters
+        worse = [np.clip(c[:5], -1.0, 1.0) for c, sc in zip(chunks, scores) if sc < scores.max()]
+        assert all(not np.array_equal(ran, w) for w in worse)
     with pytest.raises(InvalidInput, match="needs a chunk scorer"):
         Steerer(pool, expert_policy(BOOK, FailureKnobs()), None, SteerConfig(method="value", k=4))
 

@@ -170,19 +170,12 @@ def test_every_task_of_every_derived_suite_checks_out(suite):
     assert [r["task"] for r in rows if not r["ok"]] == [], [r["problems"] for r in rows if not r["ok"]]
 
 
-# Composition tasks the clean scripted expert does not solve yet (the expert is not this
-# module's; see docs/suites.md): after a tall first object (carton, bottle) stands in the
-# basket, the second placement aims at the basket centre it occupies and hovers there; the
-# wine bottle would have to lie down to let the drawer close.
-EXPERT_FAILS = {2: "tall orange juice blocks the basket", 3: "tall milk blocks the basket",
-                4: "tall orange juice blocks the basket", 7: "the expert never grasps the ketchup bottle",
-                9: "the upright wine bottle is taller than the drawer, which cannot close"}
-
-
+# Every composition task, init state 0, clean expert. The five expected failures once listed here
+# (tall cartons in the basket, the ketchup grasp, the wine bottle in the drawer) all passed once the
+# xfails were made strict (2026-12-01): the expert that main has since merged solves them, so none
+# is expected to fail any more, and a regression fails here.
 @pytest.mark.slow
-@pytest.mark.parametrize("task_id", [
-    pytest.param(t, marks=pytest.mark.xfail(reason=EXPERT_FAILS[t], strict=False)) if t in EXPERT_FAILS else t
-    for t in range(len(COMPOSITION))])
+@pytest.mark.parametrize("task_id", range(len(COMPOSITION)))
 def test_clean_expert_solves_composition_task(task_id):
     from seal.episode import run_policy_episode
     from seal.policies.expert.policy import FailureKnobs, ScriptedExpert

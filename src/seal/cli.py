@@ -27,7 +27,8 @@ def _cmd_run(args) -> int:
                              max_steps=args.max_steps, video=not args.no_video, grids=not args.no_grids,
                              subscribers=(progress,))
     keys = ("task", "method", "init_index", "success", "sim_error", "steps", "wall_s", "subplans", "goal_status",
-            "verifier_calls", "rounds", "fallbacks", "divergence", "timing", "trace")
+            "verifier_calls", "verifier_errors", "verifier_unavailable", "rounds", "fallbacks", "divergence",
+            "timing", "trace")
     print(json.dumps({k: getattr(result, k) for k in keys}, indent=2))
     return 0
 
@@ -137,6 +138,11 @@ def _cmd_eval(args) -> int:
         summary = run_eval(args.db, methods, suites, tasks, args.trials, options=options, backend=args.backend,
                            workers=args.workers, address=args.address, on_row=on_row)
     print(json.dumps(summary.__dict__))
+    for method, n in summary.verifier_errors.items():
+        if n:
+            print(f"seal: warning: {method}: {n} verification(s) got no answer (verifier errors past their "
+                  f"retries); {summary.verifier_unavailable[method]} trial(s) mostly unverified. See `seal report`.",
+                  file=sys.stderr)
     return 0
 
 
@@ -451,7 +457,11 @@ def _add_bench(sub) -> None:
     bench.add_argument("--ks", default="", help="runtime: comma-separated K values (default 1,2,4,8,10)")
     bench.add_argument("--latency", type=float, default=2.0, help="runtime: fixed verifier latency in seconds")
     bench.add_argument("--tasks", default="", help="comma-separated task ids (expert: all; steer: 0,1,7; runtime: 5)")
-    bench.add_argument("--trials", type=int, default=50, help="expert/steer/runtime: trials (init states) per task; serve: round trips")
+    bench.add_argument("--trials", type=int, default=None,
+                       help="expert/steer/runtime: trials (init states) per task (default 50); eval: trials per "
+                            "task (default 3); serve: round trips (default 50)")
+    bench.add_argument("--max-steps", type=int, default=None,
+                       help="steer/runtime/eval: control steps per episode (default: the suite's limit)")
     bench.add_argument("--no-misaligned", action="store_true", help="expert: skip the misaligned setting")
     bench.add_argument("--first-init", type=int, default=0,
                        help="expert: first official init state (trials run first-init .. first-init+trials-1)")

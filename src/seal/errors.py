@@ -15,3 +15,10 @@ class SimulationError(SealError, RuntimeError):
 
 class WorkerCrashed(SealError, RuntimeError):
     """A pool worker process died while it held the env that this result belongs to."""
+
+
+class VerifierUnavailable(SealError, RuntimeError):
+    """The verifier cannot give any verdict: a wrong key, model name or URL, a server that is not
+    there. Retrying will not help and every later verdict would be missing too, so the run stops
+    with this reason instead of carrying on unverified. (A transient failure that outlasts its
+    retries is not this: it becomes an unknown verdict with ``extra["error"]``, counted per trial.)"""

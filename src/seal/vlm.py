@@ -128,6 +128,21 @@ def openai_is_transient(exc: BaseException) -> bool:
     return isinstance(exc, transport_errors())
 
 
+def openai_reached_server(exc: BaseException) -> bool:
+    """Whether the server answered at all (any HTTP status) or at least took the connection and
+    went quiet (a timeout), as opposed to a connection that failed."""
+    import openai
+
+    return isinstance(exc, (openai.APIStatusError, openai.APITimeoutError))
+
+
+def gemini_reached_server(exc: BaseException) -> bool:
+    from google.genai import errors
+
+    timeouts = tuple(t for t in transport_errors() if "Timeout" in t.__name__)
+    return isinstance(exc, (errors.APIError, *timeouts))
+
+
 def gemini_is_transient(exc: BaseException) -> bool:
     """Whether a google-genai error is worth retrying (transport trouble, 429, 5xx)."""
     from google.genai import errors

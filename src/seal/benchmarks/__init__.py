@@ -16,6 +16,22 @@ BENCHMARKS = {"sim": "seal.benchmarks.sim:run", "expert": "seal.benchmarks.exper
               "value": "seal.benchmarks.value:run"}
 
 
+# `--trials` when not given, per benchmark (what it counts differs: init states per task, trials of
+# the eval harness, round trips of `serve`). A value given is always honoured, never replaced.
+DEFAULT_TRIALS = {"expert": 50, "steer": 50, "runtime": 50, "eval": 3, "serve": 50}
+
+
+def trials_of(args, name: str) -> int:
+    """``--trials`` as given, else this benchmark's default; refuses a count below 1."""
+    from seal.errors import InvalidInput
+
+    n = getattr(args, "trials", None)
+    n = DEFAULT_TRIALS[name] if n is None else int(n)
+    if n < 1:
+        raise InvalidInput(f"--trials must be >= 1, got {n}")
+    return n
+
+
 def run_benchmark(name: str, args) -> dict:
     if name not in BENCHMARKS:
         from seal.errors import InvalidInput

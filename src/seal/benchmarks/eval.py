@@ -7,7 +7,10 @@
   (the steerer's own timers), i.e. what the harness adds: pool building, resets, observation
   round trips, traces, IPC, the store.
 - ray_vs_local: throughput of the Ray backend over the local backend on the same base trials,
-  2 workers each (a ratio within one run, since this machine is shared and noisy).
+  2 workers each (a ratio within one run, since this machine is shared and noisy), on
+  max(--trials, 2) trials per task.
+
+``--trials`` (default 3 per task) is run as given; ``--max-steps`` caps each episode (smoke runs).
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+from seal.benchmarks import trials_of
 from seal.eval.execute import RunOptions
 from seal.eval.runner import run_eval
 from seal.eval.store import ResultStore
@@ -35,17 +39,21 @@ def _timed_run(db: Path, methods, suite, tasks, trials, options, **kw) -> tuple[
 def run(args) -> dict:
     suite = args.suite
     tasks = parse_task_ids(args.suite, args.tasks or "0")
-    trials = args.trials if args.trials != 50 else 3  # 50 is `bench`'s shared default; keep this one short
+    trials = trials_of(args, "eval")  # as given (default 3): never silently replaced
     workers = args.workers or 1
-    out: dict = {"suite": suite, "tasks": tasks, "trials_per_task": trials, "workers": workers, "k": args.k}
+    max_steps = getattr(args, "max_steps", None)
+    out: dict = {"suite": suite, "tasks": tasks, "trials_per_task": trials, "workers": workers, "k": args.k,
+                 "max_steps": max_steps}
     with tempfile.TemporaryDirectory(prefix="seal-bench-eval-") as tmp:
         tmp = Path(tmp)
-        options = RunOptions(out_dir=str(tmp / "runs"), video="none", grids=False, pool_workers=1)
+        options = RunOptions(out_dir=str(tmp / "runs"), video="none", grids=False, pool_workers=1,
+                             max_steps=max_steps)
         overheads = []
         for method in (MethodSpec(method="base"), MethodSpec(method="seal", k=args.k, verifier="oracle")):
             elapsed, rows = _timed_run(tmp / f"{method.method}.db", [method], suite, tasks, trials,
                                        replace(options, pool_workers=1 if method.method == "base" else 2), workers=workers)
             n = len(rows)
+            out[f"trials_run_{method.method}"] = n
             out[f"trials_per_hour_{method.method}"] = round(3600 * n / elapsed, 1)
             out[f"success_{method.method}"] = round(sum(r.success for r in rows) / n, 3)
             out[f"mean_steps_{method.method}"] = round(sum(r.steps for r in rows) / n, 1)
@@ -54,9 +62,10 @@ def run(args) -> dict:
             out[f"harness_overhead_s_{method.method}"] = round(overheads[-1], 2)
         out["harness_overhead_s"] = round(sum(overheads) / len(overheads), 2)
         base = [MethodSpec(method="base")]
-        t_local, _ = _timed_run(tmp / "local2.db", base, suite, tasks, max(trials, 4), options, workers=2)
-        t_ray, _ = _timed_run(tmp / "ray2.db", base, suite, tasks, max(trials, 4), options, workers=2,
-                              backend="ray")
+        both = max(trials, 2)  # two workers each need a trial
+        t_local, _ = _timed_run(tmp / "local2.db", base, suite, tasks, both, options, workers=2)
+        t_ray, _ = _timed_run(tmp / "ray2.db", base, suite, tasks, both, options, workers=2, backend="ray")
+        out["ray_vs_local_trials_per_task"] = both
         out["local_2w_s"], out["ray_2w_s"] = round(t_local, 1), round(t_ray, 1)
         out["ray_vs_local"] = round(t_local / t_ray, 3)
     return out

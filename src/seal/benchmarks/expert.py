@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from seal.benchmarks import trials_of
 from seal.errors import InvalidInput
 from seal.sim.suites import get_task, parse_task_ids
 
@@ -107,13 +108,14 @@ def run(args) -> dict:
     suite = args.suite
     tasks = parse_task_ids(suite, args.tasks)
     first = int(getattr(args, "first_init", 0) or 0)
-    if args.trials < 1 or first < 0:
-        raise InvalidInput(f"--trials must be >= 1 and --first-init >= 0, got {args.trials} and {first}")
+    trials = trials_of(args, "expert")
+    if first < 0:
+        raise InvalidInput(f"--first-init must be >= 0, got {first}")
     settings = ["clean"] + ([] if args.no_misaligned else ["misaligned"])
     jobs = []
     for t in tasks:
         n_inits = len(get_task(suite, t).init_states())
-        last = min(first + args.trials, n_inits)
+        last = min(first + trials, n_inits)
         if last <= first:
             raise InvalidInput(f"task {t} of {suite} has {n_inits} init states; --first-init {first} is past them")
         jobs += [(suite, t, k, i) for k in settings for i in range(first, last)]
@@ -144,7 +146,7 @@ def run(args) -> dict:
                 rows.append(row)
                 clean = [r["success"] for r in rows if r["knobs"] == "clean"]
                 progress.update(bar, advance=1, rate=f"{np.mean(clean):.2f}" if clean else "-")
-    out = summarize(rows, suite, args.trials, first)
+    out = summarize(rows, suite, trials, first)
     out["wall_s"] = round(time.perf_counter() - start, 1)
     out["version"] = version
     return out

@@ -42,7 +42,9 @@ def run(args) -> dict:
     from seal.sim.world import LiberoWorld
     from seal.steer.method import MethodSpec
 
-    k, reps = args.k, max(5, min(args.trials, 200))
+    from seal.benchmarks import trials_of
+
+    k, reps = args.k, max(5, min(trials_of(args, "serve"), 200))
     spec = get_task(args.suite, args.task)
     console = Console(stderr=True)
     expert = make_policy("scripted", MethodSpec(knobs="misaligned"), spec)

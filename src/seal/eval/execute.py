@@ -16,6 +16,7 @@ import traceback
 from dataclasses import dataclass
 from pathlib import Path
 
+from seal.errors import VerifierUnavailable
 from seal.eval.store import TrialRow
 from seal.eval.trials import TrialSpec
 
@@ -64,6 +65,9 @@ class TrialRunner:
             self._run(spec, out, row)
         except KeyboardInterrupt:
             raise
+        except VerifierUnavailable as exc:  # no verdict will ever come: the run must stop, not go on unverified
+            row.status, row.success, row.fatal = "error", False, str(exc)
+            row.error = traceback.format_exc()
         except Exception:
             row.status, row.success = "error", False
             row.error = traceback.format_exc()
@@ -120,6 +124,7 @@ def fill_row(row: TrialRow, result) -> None:
     row.policy_s = round(result.timing.get("sampling_s", 0.0), 3)
     row.verify_wait_s = round(result.timing.get("verify_wait_s", 0.0), 3)
     row.verifier_calls, row.rounds, row.fallbacks = result.verifier_calls, result.rounds, result.fallbacks
+    row.verifier_errors, row.verifier_unavailable = result.verifier_errors, result.verifier_unavailable
     row.input_tokens, row.output_tokens = result.input_tokens, result.output_tokens
     row.cost_usd = result.cost_usd
     row.subplans, row.goal_status = result.subplans, result.goal_status

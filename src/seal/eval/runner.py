@@ -11,6 +11,7 @@ from collections import defaultdict
 from dataclasses import dataclass, field, replace
 from typing import Callable
 
+from seal.errors import VerifierUnavailable
 from seal.eval.backends import make_backend
 from seal.eval.execute import RunOptions
 from seal.eval.store import ResultStore, TrialRow
@@ -26,6 +27,8 @@ class EvalSummary:
     errors: int = 0
     success: dict = field(default_factory=dict)  # method label -> fraction over this command's trials
     trials: dict = field(default_factory=dict)  # method label -> finished trials of this command
+    verifier_errors: dict = field(default_factory=dict)  # method label -> verifications with no answer
+    verifier_unavailable: dict = field(default_factory=dict)  # method label -> trials mostly unverified
 
 
 def plan_eval(store: ResultStore, methods: list[MethodSpec], suites: list[str], tasks: list[int] | None,
@@ -48,6 +51,10 @@ def run_eval(db: str, methods: list[MethodSpec], suites: list[str], tasks: list[
         runner = make_backend(backend, options, workers, address) if todo else None
         try:
             for row in (runner.run(todo) if runner else ()):
+                if row.fatal:  # not stored: once the verifier is fixed, re-running the command redoes it
+                    raise VerifierUnavailable(
+                        f"stopped the run: {row.fatal} (in {row.method} {row.suite}/{row.task} trial {row.trial}; "
+                        f"{summary.ran} trial(s) of this command were stored, re-run the same command to resume)")
                 store.add(row)
                 summary.ran += 1
                 summary.errors += row.status == "error"
@@ -60,7 +67,9 @@ def run_eval(db: str, methods: list[MethodSpec], suites: list[str], tasks: list[
         per = defaultdict(list)
         for row in store.rows():
             if row.key in keys:
-                per[row.method].append(row.success)
-        summary.success = {m: round(sum(v) / len(v), 4) for m, v in per.items()}
+                per[row.method].append(row)
+        summary.success = {m: round(sum(r.success for r in v) / len(v), 4) for m, v in per.items()}
         summary.trials = {m: len(v) for m, v in per.items()}
+        summary.verifier_errors = {m: sum(r.verifier_errors for r in v) for m, v in per.items()}
+        summary.verifier_unavailable = {m: sum(r.verifier_unavailable for r in v) for m, v in per.items()}
     return summary

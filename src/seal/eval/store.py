@@ -18,7 +18,7 @@ from pathlib import Path
 
 from seal.errors import InvalidInput
 
-SCHEMA_VERSION = 2  # v2 added trials.policy_s
+SCHEMA_VERSION = 3  # v2 added trials.policy_s, v3 trials.verifier_errors and verifier_unavailable
 MAGIC = "seal-results"
 
 _SCHEMA = """
@@ -50,6 +50,8 @@ CREATE TABLE trials (
     cost_usd REAL NOT NULL,
     rounds INTEGER NOT NULL,
     fallbacks INTEGER NOT NULL,
+    verifier_errors INTEGER NOT NULL DEFAULT 0,
+    verifier_unavailable INTEGER NOT NULL DEFAULT 0,
     subplans_json TEXT NOT NULL,
     goal_status_json TEXT NOT NULL,
     trace_path TEXT NOT NULL,
@@ -88,6 +90,8 @@ class TrialRow:
     cost_usd: float = 0.0
     rounds: int = 0
     fallbacks: int = 0
+    verifier_errors: int = 0  # verifications that got no answer (transient errors past their retries)
+    verifier_unavailable: bool = False  # in most rounds no verification got an answer: mostly unverified
     subplans: list = field(default_factory=list)
     goal_status: dict = field(default_factory=dict)
     trace_path: str = ""
@@ -95,13 +99,16 @@ class TrialRow:
     error: str = ""
     worker: str = ""
     finished_at: float = 0.0
+    # Not stored: set when the trial hit an error that stops the whole run (the verifier cannot
+    # answer at all). The runner raises it instead of storing the row, so a resumed run redoes it.
+    fatal: str = field(default="", compare=False)
 
     @property
     def key(self) -> tuple[str, str, int, int]:
         return (self.config_hash, self.suite, self.task, self.trial)
 
 
-_COLUMNS = [f.name for f in fields(TrialRow) if f.name not in ("subplans", "goal_status")] + \
+_COLUMNS = [f.name for f in fields(TrialRow) if f.name not in ("subplans", "goal_status", "fatal")] + \
     ["subplans_json", "goal_status_json"]
 
 
@@ -159,6 +166,9 @@ class ResultStore:
         with self._tx():
             if version < 2:
                 self._db.execute("ALTER TABLE trials ADD COLUMN policy_s REAL NOT NULL DEFAULT 0")
+            if version < 3:
+                self._db.execute("ALTER TABLE trials ADD COLUMN verifier_errors INTEGER NOT NULL DEFAULT 0")
+                self._db.execute("ALTER TABLE trials ADD COLUMN verifier_unavailable INTEGER NOT NULL DEFAULT 0")
             self._db.execute("UPDATE seal_meta SET value = ? WHERE key = 'schema_version'", (str(SCHEMA_VERSION),))
 
     def close(self) -> None:
@@ -186,6 +196,7 @@ class ResultStore:
         values["subplans_json"] = json.dumps(values.pop("subplans"))
         values["goal_status_json"] = json.dumps(values.pop("goal_status"))
         values["success"], values["sim_error"] = int(bool(row.success)), int(bool(row.sim_error))
+        values["verifier_unavailable"] = int(bool(row.verifier_unavailable))
         values["finished_at"] = values["finished_at"] or time.time()
         with self._tx():
             cur = self._db.execute(
@@ -209,6 +220,7 @@ class ResultStore:
             d["subplans"] = json.loads(d.pop("subplans_json"))
             d["goal_status"] = json.loads(d.pop("goal_status_json"))
             d["success"], d["sim_error"] = bool(d["success"]), bool(d["sim_error"])
+            d["verifier_unavailable"] = bool(d["verifier_unavailable"])
             out.append(TrialRow(**d))
         return out
 

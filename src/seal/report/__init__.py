@@ -62,6 +62,7 @@ def write_report(db: str | Path, out_dir: str | Path, *, runs_dir: str | Path | 
     csvs.append(_write(out / "csv" / "paired_differences.csv", tables.paired_csv(paired)))
     csvs.append(_write(out / "csv" / "runtime.csv", tables.runtime_csv(runtime)))
     csvs.append(_write(out / "csv" / "errors.csv", tables.error_csv(data)))
+    csvs.append(_write(out / "csv" / "verifier_errors.csv", tables.verifier_csv(data)))
 
     plot_paths = [plots.success_plot(data, success, out / "plots" / "success_by_suite.png"),
                   plots.runtime_vs_k_plot(data, runtime, out / "plots" / "runtime_vs_k.png")]
@@ -69,7 +70,7 @@ def write_report(db: str | Path, out_dir: str | Path, *, runs_dir: str | Path | 
     sections = [("Success", [tables.success_display(st) for st in success]),
                 ("Paired differences", [tables.paired_display(paired)]),
                 ("Runtime", [tables.runtime_display(runtime)]),
-                ("Errors", [tables.error_display(data)])]
+                ("Errors", [tables.error_display(data), tables.verifier_display(data)])]
     md = _write(out / "report.md", _markdown(data, sections, plot_paths, out))
 
     pages: dict[str, Path] = {}
@@ -95,6 +96,8 @@ def _markdown(data: ReportData, sections, plot_paths: list[Path], out: Path) -> 
     lines = ["# SEAL evaluation report", "",
              (f"Database `{data.db_path}`: {len(data.rows)} trials, {len(data.methods)} method configurations, "
              f"suites {', '.join(data.suites)}, {len(data.errors())} error trial(s)."), ""]
+    if data.verifier_warning():
+        lines += [f"> **{data.verifier_warning()}**", ""]
     for title, tabs in sections:
         lines += [f"## {title}", ""] + [to_markdown(t) for t in tabs]
     lines += ["## Plots", ""] + [f"![{p.stem}]({p.relative_to(out).as_posix()})" for p in plot_paths] + [""]

@@ -140,6 +140,22 @@ class ReportData:
     def errors(self) -> list[TrialRow]:
         return [r for r in self.rows if r.status == "error"]
 
+    def verifier_trouble(self) -> list[TrialRow]:
+        """Trials in which some verification got no answer (transient errors past the retries)."""
+        return [r for r in self.rows if r.verifier_errors > 0 or r.verifier_unavailable]
+
+    def verifier_warning(self) -> str:
+        """One sentence for the top of the report, or "" when every verification was answered."""
+        trouble = self.verifier_trouble()
+        if not trouble:
+            return ""
+        calls = sum(r.verifier_errors for r in trouble)
+        mostly = sum(r.verifier_unavailable for r in trouble)
+        return (f"Warning: {calls} verification(s) in {len(trouble)} trial(s) got no answer from the verifier "
+                f"(errors that outlasted the retries; the loop fell back to unverified candidates there). "
+                f"{mostly} trial(s) had the verifier unavailable in most of their rounds (no answer at all): their results "
+                f"say little about the verified method. See the table 'Verifier errors'.")
+
     # ---- files -----------------------------------------------------------------------------
     def resolve(self, stored: str) -> Path | None:
         """A trial file as stored, or the same file under ``runs_dir`` if the run directory was

@@ -42,6 +42,7 @@ img.grid{max-width:100%;border:1px solid #d0d7de;margin:4px 0}
 video{max-width:448px;border:1px solid #d0d7de}
 details{margin:6px 0}summary{cursor:pointer}
 .ep a{text-decoration:none}
+.warn{background:#fff8c5;border:1px solid #d4a72c;padding:6px 10px;font-weight:600}
 """
 
 # No script may run in these pages; inline styles are ours.
@@ -117,6 +118,8 @@ def write_index(data: ReportData, out_dir: Path, *, sections: list[tuple[str, li
              f"{len(data.methods)} method configurations · suites {esc(', '.join(data.suites))} · "
              f"{n_err} error trial(s) · generated {esc(time.strftime('%Y-%m-%d %H:%M:%S'))}</p>"),
              _file_links(out_dir, markdown, csvs), _methods_html(data)]
+    if data.verifier_warning():
+        parts.insert(2, f'<p class="warn" id="verifier-warning">{esc(data.verifier_warning())}</p>')
     if plots:
         parts.append('<h2 id="plots">Plots</h2>')
         parts += [f'<img class="plot" alt="{esc(p.stem)}" src="{quote(p.relative_to(out_dir).as_posix())}">'
@@ -197,6 +200,11 @@ def write_episode(data: ReportData, row: TrialRow, out_dir: Path, media: MediaPl
              f"{row.wall_s:.1f} s wall · {row.verifier_calls} verifier calls · {row.input_tokens}+"
              f"{row.output_tokens} tokens · ${row.cost_usd:.4f} · init state {row.init_index} · seed {row.seed}"
              f"{' · simulator error' if row.sim_error else ''} · worker {esc(row.worker)}</p>")]
+    if row.verifier_errors or row.verifier_unavailable:
+        parts.append(f'<p class="warn">{row.verifier_errors} of {row.verifier_calls} verification(s) got no '
+                     f"answer from the verifier (errors past the retries)"
+                     f"{'; in most rounds the verifier never answered, so this result is mostly unverified' if row.verifier_unavailable else ''}"
+                     ".</p>")
     if row.status == "error":
         parts.append(f"<h2>Traceback</h2><pre>{esc(row.error)}</pre>")
     video_src = data.resolve(row.video_path)
@@ -262,7 +270,9 @@ def _trace_html(events: list[dict], grids_dir: Path, ident: str, media: MediaPla
             ok = bool(ev.get("success"))
             out.append(f'<p><b>Episode end:</b> <span class="{"ok" if ok else "fail"}">'
                        f'{"success" if ok else "failure"}</span> after {esc(ev.get("steps"))} steps'
-                       f'{" (simulator error)" if ev.get("sim_error") else ""}, t={esc(ev.get("t"))} s</p>')
+                       f'{" (simulator error)" if ev.get("sim_error") else ""}, t={esc(ev.get("t"))} s'
+                       f'{", verifier errors: " + esc(ev.get("verifier_errors")) if ev.get("verifier_errors") else ""}'
+                       "</p>")
     flush()
     return "\n".join(out) if out else '<p class="note">The trace is empty.</p>'
 
@@ -276,6 +286,8 @@ def _candidates_table(cands: list[dict]) -> str:
         else:
             ok = v.get("success")
             verdict, cls = ("pass", "ok") if ok is True else ("fail", "fail") if ok is False else ("unknown", "err")
+            if v.get("error"):
+                verdict = f"unknown: verifier error ({v['error']})"
         rows.append(
             f"<tr><td>{esc(c.get('round'))}</td><td>{esc(c.get('slot'))}</td><td>{esc(c.get('steps'))}</td>"
             f'<td class="text">{esc(c.get("ended_by"))}{" — " + esc(c.get("error")) if c.get("error") else ""}</td>'

@@ -236,6 +236,9 @@ class RuntimeRow:
     input_tokens: int
     output_tokens: int
     cost_usd: float
+    fallbacks: int = 0  # sub-plans where no candidate passed and the fallback chose
+    verifier_errors: int = 0  # verifications with no answer
+    unverified_trials: int = 0  # trials whose verifier never answered in most of their rounds
 
     def per_trial(self, total: float) -> float:
         return total / self.trials if self.trials else math.nan
@@ -253,22 +256,29 @@ def runtime_rows(data: ReportData) -> list[RuntimeRow]:
         out.append(RuntimeRow(m, len(rs), sum(r.steps for r in rs), sum(r.wall_s for r in rs),
                               sum(r.step_s for r in rs), sum(r.verify_wait_s for r in rs),
                               sum(r.verifier_calls for r in rs), sum(r.input_tokens for r in rs),
-                              sum(r.output_tokens for r in rs), sum(r.cost_usd for r in rs)))
+                              sum(r.output_tokens for r in rs), sum(r.cost_usd for r in rs),
+                              sum(r.fallbacks for r in rs), sum(r.verifier_errors for r in rs),
+                              sum(r.verifier_unavailable for r in rs)))
     return out
 
 
 def runtime_display(rows: list[RuntimeRow]) -> Table:
     headers = ["Method", "K", "trials", "wall s / trial", "executed steps / trial", "wall ms / executed step",
                "sim s / trial", "verify wait s / trial", "verifier calls / trial", "tokens in / trial",
-               "tokens out / trial", "cost $ / trial", "cost $ total"]
+               "tokens out / trial", "cost $ / trial", "cost $ total", "fallbacks / trial",
+               "verifier errors", "trials mostly unverified"]
     body = [[r.method.label, str(r.method.k), str(r.trials), f"{r.per_trial(r.wall_s):.2f}",
              f"{r.per_trial(r.steps):.1f}", _fmt(1000 * r.wall_per_step_s, 1), f"{r.per_trial(r.step_s):.2f}",
              f"{r.per_trial(r.verify_wait_s):.2f}", f"{r.per_trial(r.verifier_calls):.1f}",
              f"{r.per_trial(r.input_tokens):.0f}", f"{r.per_trial(r.output_tokens):.0f}",
-             f"{r.per_trial(r.cost_usd):.4f}", f"{r.cost_usd:.4f}"] for r in rows]
+             f"{r.per_trial(r.cost_usd):.4f}", f"{r.cost_usd:.4f}", f"{r.per_trial(r.fallbacks):.2f}",
+             str(r.verifier_errors), str(r.unverified_trials)] for r in rows]
     notes = [("All trials of a configuration, error trials included (they cost time too). Per executed "
              "step = total wall time / total executed env steps. sim = time stepping the simulator for "
-             "candidates; verify wait = time blocked on verdicts.")]
+             "candidates; verify wait = time blocked on verdicts. fallbacks = sub-plans where no candidate "
+             "passed and the best-scored (else the first) candidate was executed; verifier errors = "
+             "verifications that got no answer after every retry; trials mostly unverified = trials where, "
+             "in more than half of the sampling rounds that asked the verifier, no verification got an answer.")]
     return Table("Runtime per method configuration", headers, body, set(), notes, left=1)
 
 
@@ -276,12 +286,14 @@ def runtime_csv(rows: list[RuntimeRow]) -> str:
     return to_csv(["method", "config_hash", "k", "trials", "executed_steps", "wall_s_per_trial",
                    "wall_s_per_executed_step", "sim_s_per_trial", "verify_wait_s_per_trial",
                    "verifier_calls_per_trial", "input_tokens_per_trial", "output_tokens_per_trial",
-                   "cost_usd_per_trial", "cost_usd_total"],
+                   "cost_usd_per_trial", "cost_usd_total", "fallbacks_per_trial", "verifier_errors",
+                   "trials_mostly_unverified"],
                   [[r.method.label, r.method.config_hash, r.method.k, r.trials, r.steps,
                     _num(r.per_trial(r.wall_s), 3), _num(r.wall_per_step_s, 5), _num(r.per_trial(r.step_s), 3),
                     _num(r.per_trial(r.verify_wait_s), 3), _num(r.per_trial(r.verifier_calls), 2),
                     _num(r.per_trial(r.input_tokens), 1), _num(r.per_trial(r.output_tokens), 1),
-                    _num(r.per_trial(r.cost_usd), 6), round(r.cost_usd, 6)] for r in rows])
+                    _num(r.per_trial(r.cost_usd), 6), round(r.cost_usd, 6), _num(r.per_trial(r.fallbacks), 3),
+                    r.verifier_errors, r.unverified_trials] for r in rows])
 
 
 def _fmt(x: float, digits: int) -> str:
@@ -299,6 +311,22 @@ def error_display(data: ReportData) -> Table:
 def error_csv(data: ReportData) -> str:
     return to_csv(["method", "config_hash", "suite", "task", "trial", "worker", "error"],
                   [[r.method, r.config_hash, r.suite, r.task, r.trial, r.worker, r.error] for r in data.errors()])
+
+
+# ---- verifier errors ---------------------------------------------------------------------------
+def verifier_display(data: ReportData) -> Table:
+    body = [[r.method, r.suite, str(r.task), str(r.trial), str(r.verifier_calls), str(r.verifier_errors),
+             "yes" if r.verifier_unavailable else "no"] for r in data.verifier_trouble()]
+    notes = [data.verifier_warning()] if body else ["Every verification got an answer."]
+    return Table("Verifier errors", ["Method", "Suite", "Task", "Trial", "verifier calls", "no answer",
+                                     "mostly unverified"], body, set(), notes, left=4)
+
+
+def verifier_csv(data: ReportData) -> str:
+    return to_csv(["method", "config_hash", "suite", "task", "trial", "verifier_calls", "verifier_errors",
+                   "verifier_unavailable"],
+                  [[r.method, r.config_hash, r.suite, r.task, r.trial, r.verifier_calls, r.verifier_errors,
+                    int(r.verifier_unavailable)] for r in data.verifier_trouble()])
 
 
 def last_line(traceback_text: str) -> str:

@@ -3,6 +3,19 @@
 The loop itself is synchronous (it waits on pool workers); verifications are coroutines
 (HTTP calls to a VLM, or an instant oracle check). A private event loop on its own thread
 runs them, and the loop polls plain `concurrent.futures.Future`s - no async leaks upward.
+
+Failures are sorted here, so that none passes silently:
+
+- permanent (`seal.errors.VerifierUnavailable`: a wrong key, model or URL, a server that is down)
+  stays an exception; the loop re-raises it when it reads the future, which stops the run with
+  the reason (a run of "execute candidate 0" labelled as a verified method would be worse);
+- transient (an unknown verdict whose ``extra["error"]`` says the service failed past its
+  retries, or a ConnectionError/TimeoutError raised by a verifier) is an unknown verdict, and
+  counted: ``errors`` out of ``calls``, and per round (`start_round`): a round whose finished
+  verifications all got no answer was decided without the verifier, and an episode where most
+  such rounds were is ``mostly_unavailable``;
+- anything else a verifier raises is a bug: it propagates like a permanent error (in `seal eval`
+  the trial becomes an error row with its traceback).
 """
 
 from __future__ import annotations
@@ -10,9 +23,13 @@ from __future__ import annotations
 import asyncio
 import threading
 import time
-from concurrent.futures import Future
+from concurrent.futures import CancelledError, Future
 
+from seal.errors import VerifierUnavailable
 from seal.verify.base import Verdict, VerifyRequest
+
+# Exceptions a verifier may raise that are worth no more than an unknown verdict.
+TRANSIENT = (ConnectionError, TimeoutError, asyncio.TimeoutError)
 
 
 class BackgroundVerifier:
@@ -21,24 +38,61 @@ class BackgroundVerifier:
         self._loop = asyncio.new_event_loop()
         self._thread = threading.Thread(target=self._loop.run_forever, name="seal-verify", daemon=True)
         self._thread.start()
+        # Written on the verifier thread only; read by the loop once the episode is over.
+        self.calls = 0  # verifications that finished, with an answer or an error
+        self.errors = 0  # ...that ended with no answer: the verifier was unavailable for them
+        self.last_error = ""
+        self._round = 0
+        self._rounds: dict[int, list[bool]] = {}  # round -> answered? per finished verification
+
+    def start_round(self) -> None:
+        """Verifications submitted from now on belong to a new sampling round."""
+        self._round += 1
+
+    @property
+    def rounds_unavailable(self) -> int:
+        """Rounds with verifications, none of which got an answer."""
+        return sum(not any(answers) for answers in self._rounds.values())
+
+    @property
+    def mostly_unavailable(self) -> bool:
+        """In more than half of the rounds that asked the verifier, it never answered."""
+        return self.rounds_unavailable * 2 > len(self._rounds)
 
     def submit(self, request: VerifyRequest) -> Future:
-        """Start verifying now; the future resolves to a `Verdict` (exceptions become unknown)."""
-        return asyncio.run_coroutine_threadsafe(self._run(request), self._loop)
+        """Start verifying now; the future resolves to a `Verdict` (a transient failure is an
+        unknown verdict with ``extra["error"]``) or raises a permanent error."""
+        return asyncio.run_coroutine_threadsafe(self._run(request, self._round), self._loop)
 
-    async def _run(self, request: VerifyRequest) -> Verdict:
+    async def _run(self, request: VerifyRequest, round_: int = 0) -> Verdict:
         start = time.perf_counter()
         try:
             verdict = await self.verifier.verify(request)
         except asyncio.CancelledError:
             raise
-        except Exception as exc:  # a verifier failure must not end the episode
-            verdict = Verdict(None, f"unknown: verifier error {type(exc).__name__}: {exc}")
+        except VerifierUnavailable:
+            raise
+        except TRANSIENT as exc:  # one flaky call must not end the episode; it is counted below
+            why = f"{type(exc).__name__}: {exc}"
+            verdict = Verdict(None, f"unknown: verifier error {why}", extra={"error": why})
+        self.calls += 1
+        answered = not (verdict.success is None and verdict.extra.get("error"))
+        self._rounds.setdefault(round_, []).append(answered)
+        if not answered:
+            self.errors += 1
+            self.last_error = str(verdict.extra["error"])
         verdict.extra.setdefault("wall_s", time.perf_counter() - start)
         return verdict
 
     def close(self) -> None:
         if self._loop.is_running():
+            # Cancel what is still in flight (an early exit, or a run stopped by a permanent error)
+            # so no verification is left half-done in a loop that is about to close.
+            done = asyncio.run_coroutine_threadsafe(_cancel_pending(), self._loop)
+            try:
+                done.result(timeout=5)
+            except (TimeoutError, CancelledError):
+                pass  # a verifier that ignores cancellation for 5 s is abandoned with its loop
             self._loop.call_soon_threadsafe(self._loop.stop)
             self._thread.join(timeout=5)
         if not self._loop.is_running():
@@ -49,3 +103,10 @@ class BackgroundVerifier:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+async def _cancel_pending() -> None:
+    tasks = [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]
+    for t in tasks:
+        t.cancel()
+    await asyncio.gather(*tasks, return_exceptions=True)

@@ -12,6 +12,7 @@ from __future__ import annotations
 from contextlib import ExitStack
 from pathlib import Path
 
+from seal.errors import InvalidInput, VerifierUnavailable
 from seal.policies import make_policy
 from seal.steer.engine import Steerer, SteerResult
 from seal.steer.method import MethodSpec
@@ -82,7 +83,10 @@ def build_episode(spec: MethodSpec, task, *, seed: int = 0, out_dir: str | Path 
             pool = stack.enter_context(EnvPool(task, k=spec.effective_k, workers=workers, render_mode=spec.render,
                                                physics=spec.physics()))
         if verifier is None:
-            verifier = verifier_for(spec, seed=seed)
+            try:
+                verifier = verifier_for(spec, seed=seed)
+            except InvalidInput as exc:  # e.g. no API key: no verdict would ever come, so a run must stop
+                raise VerifierUnavailable(f"cannot build the {spec.verifier!r} verifier: {exc}") from None
         if scorer is None and spec.scores:
             scorer = make_scorer("value", spec.value_ckpt)
         if policy is None:

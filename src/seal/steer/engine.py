@@ -99,6 +99,8 @@ class SteerResult:
     cost_usd: float = 0.0
     rounds: int = 0
     fallbacks: int = 0
+    verifier_errors: int = 0  # verifications that got no answer (transient errors past their retries)
+    verifier_unavailable: bool = False  # in most rounds that asked the verifier, it never answered
     divergence: list[float] = field(default_factory=list)  # replay mode: per commit, max |qpos| gap
     timing: dict = field(default_factory=lambda: {"sampling_s": 0.0, "predict_s": 0.0, "verify_wait_s": 0.0})
     executed_actions: list = field(default_factory=list)
@@ -179,12 +181,16 @@ class Steerer:
         finally:
             if background is not None:
                 background.close()
+                result.verifier_errors = background.errors
+                result.verifier_unavailable = background.mostly_unavailable
         status = pool.check([str(a) for a in self._goal_atoms()], slots=[0])[0]
         result.goal_status = status
         result.success = bool(status) and all(status.values()) and not result.sim_error
         result.steps = committed.steps
         result.wall_s = round(time.perf_counter() - start, 3)
-        self.emit("episode_end", success=result.success, steps=result.steps, sim_error=result.sim_error)
+        self.emit("episode_end", success=result.success, steps=result.steps, sim_error=result.sim_error,
+                  verifier_calls=result.verifier_calls, verifier_errors=result.verifier_errors,
+                  verifier_unavailable=result.verifier_unavailable, fallbacks=result.fallbacks)
         return result
 
     # ---- one round of K candidates -------------------------------------------------------------
@@ -194,6 +200,8 @@ class Steerer:
         k = cfg.effective_k
         pool.sync(sub.committed)
         self.policy.begin(k)
+        if sub.background is not None:
+            sub.background.start_round()  # so a round decided without any verdict can be told apart
         now = time.perf_counter()
         cands = [Candidate(round=r, slot=i, snapshot=sub.committed, t_start=now) for i in range(k)]
         sub.tried += cands
@@ -366,4 +374,4 @@ def _verdict_dict(v: Verdict | None) -> dict | None:
     if v is None:
         return None
     return {"success": v.success, "rationale": v.rationale, "latency_s": round(v.latency_s, 4),
-            "score": v.score, "cached": bool(v.extra.get("cached", False))}
+            "score": v.score, "cached": bool(v.extra.get("cached", False)), "error": v.extra.get("error")}

@@ -15,8 +15,11 @@ timeouts and connection errors, a concurrency cap and an on-disk cache of verdic
 
 When the retry budget is spent on transient errors the verdict is *unknown*
 (``success=None``, ``extra["error"]`` says why): one flaky call should not end an episode,
-and the steering loop already keeps unknown apart from failure. Errors that retrying cannot
-fix (401, 403, 404, 400: a wrong key, model or URL) raise :class:`VerifierCallError`.
+and the steering loop keeps unknown apart from failure and counts these errors per trial.
+Errors that retrying cannot fix raise :class:`VerifierCallError` (a
+:class:`~seal.errors.VerifierUnavailable`), which stops the run: any 4xx but 408 and 429 (401,
+403, 404, 400: a wrong key, model or URL), and a server that was never reached at all (every
+attempt of the first call failed to connect: nothing listens at the base URL).
 
 API keys are never stored on the verifier, logged, cached, or put into a verdict or an error
 message: every text that leaves this module goes through :func:`Secrets.scrub`.
@@ -38,7 +41,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from seal.errors import InvalidInput, SealError
+from seal.errors import InvalidInput, VerifierUnavailable
 from seal.verify.base import Verdict, VerifyRequest
 from seal.vlm import (  # noqa: F401  (PRICES_PER_MTOK, price_for, cost_usd: part of this module's API)
     BACKENDS,
@@ -49,7 +52,9 @@ from seal.vlm import (  # noqa: F401  (PRICES_PER_MTOK, price_for, cost_usd: par
     cost_usd,
     encode_image,
     gemini_is_transient,
+    gemini_reached_server,
     openai_is_transient,
+    openai_reached_server,
     price_for,
     require_key,
     require_sdk,
@@ -60,8 +65,9 @@ log = logging.getLogger(__name__)
 CACHE_FORMAT = 1  # bump when the cached record or the key recipe changes
 
 
-class VerifierCallError(SealError, RuntimeError):
-    """The model server refused the request in a way retrying cannot fix (key, model, URL)."""
+class VerifierCallError(VerifierUnavailable):
+    """The model server refused the request in a way retrying cannot fix (key, model, URL), or
+    could never be reached."""
 
 
 # --------------------------------------------------------------------------- prompt
@@ -166,6 +172,8 @@ class _Backend(Protocol):
 
     def is_transient(self, exc: BaseException) -> bool: ...
 
+    def reached_server(self, exc: BaseException) -> bool: ...
+
     async def aclose(self) -> None: ...
 
 
@@ -208,6 +216,9 @@ class _OpenAIBackend:
 
     def is_transient(self, exc: BaseException) -> bool:
         return openai_is_transient(exc)
+
+    def reached_server(self, exc: BaseException) -> bool:
+        return openai_reached_server(exc)
 
     async def aclose(self) -> None:
         await self._client.close()
@@ -255,6 +266,9 @@ class _GeminiBackend:
 
     def is_transient(self, exc: BaseException) -> bool:
         return gemini_is_transient(exc)
+
+    def reached_server(self, exc: BaseException) -> bool:
+        return gemini_reached_server(exc)
 
     async def aclose(self) -> None:
         await self._client.aio.aclose()
@@ -345,6 +359,9 @@ class VLMVerifier:
         )
         self._cache = ResponseCache(config.cache_dir) if config.cache_dir is not None else None
         self._loops: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+        # Whether the server has ever answered (any HTTP status or timeout-free reply). Until it
+        # has, a call whose every attempt failed to connect means nothing listens at the URL.
+        self._reached = False
 
     def __repr__(self) -> str:
         return f"VLMVerifier({self.config!r})"
@@ -417,15 +434,21 @@ class VLMVerifier:
         mime = f"image/{self.config.image_format}"
         error = ""
         attempts = 0
+        connected = False  # some attempt of this call reached the server
         for retry in range(self.config.max_retries + 1):
             attempts += 1
             try:
                 # wait_for is the hard bound; the SDK timeout alone may not cover every phase.
                 call = backend.complete(prompt, images, mime)
-                return await asyncio.wait_for(call, self.config.timeout_s), attempts, ""
+                answer = await asyncio.wait_for(call, self.config.timeout_s)
+                self._reached = True
+                return answer, attempts, ""
             except (asyncio.TimeoutError, TimeoutError):
                 error = f"timed out after {self.config.timeout_s:g} s"
+                connected = True  # a hang is a slow server, not a missing one
             except Exception as exc:
+                if backend.reached_server(exc):
+                    connected = self._reached = True
                 if not backend.is_transient(exc):
                     raise VerifierCallError(
                         f"{self.name}: request rejected ({self._describe(exc)}); "
@@ -436,6 +459,12 @@ class VLMVerifier:
                 delay = self.config.backoff(retry)
                 log.info("%s: attempt %d failed (%s); retrying in %.2f s", self.name, attempts, error, delay)
                 await asyncio.sleep(delay)
+        if not connected and not self._reached:
+            # Never reached, not once since this verifier was made: a wrong URL or a server that
+            # is down. Every later call would fail the same way, so this is not transient.
+            raise VerifierCallError(self._secrets.scrub(
+                f"{self.name}: cannot reach the server at {self.config.base_url or 'the SDK default URL'} "
+                f"({attempts} attempt(s), last: {error}); is it running, and is the base URL right?"))
         log.warning("%s: giving up after %d attempt(s): %s", self.name, attempts, error)
         return None, attempts, error
 
