@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import threading
 from contextlib import contextmanager
 from http.server import ThreadingHTTPServer
@@ -26,6 +27,20 @@ def serving(fake, handler_cls):
         httpd.shutdown()
         httpd.server_close()
         thread.join(timeout=5)
+
+
+def send_json(handler, status: int, payload: dict) -> None:
+    """Answer ``handler``'s request with ``payload`` as JSON; a client that already hung up
+    (a cancelled verification, a timeout test) is nobody's error."""
+    data = json.dumps(payload).encode()
+    try:
+        handler.send_response(status)
+        handler.send_header("content-type", "application/json")
+        handler.send_header("content-length", str(len(data)))
+        handler.end_headers()
+        handler.wfile.write(data)
+    except (BrokenPipeError, ConnectionResetError):
+        pass
 
 
 def scrub_env(monkeypatch) -> None:

@@ -21,9 +21,8 @@ import threading
 from dataclasses import dataclass, field
 from http.server import BaseHTTPRequestHandler
 
-import numpy as np
 import pytest
-from _local_http import scrub_env, serving
+from _local_http import scrub_env, send_json, serving
 
 from seal.errors import VerifierUnavailable
 from seal.eval.execute import RunOptions
@@ -76,15 +75,7 @@ def _handler(fake: FakeVLM):
                            "usage": {"prompt_tokens": 900, "completion_tokens": 40, "total_tokens": 940}}
             else:
                 payload = {"error": {"message": f"scripted {status}", "type": "scripted", "code": status}}
-            data = json.dumps(payload).encode()
-            try:
-                self.send_response(status)
-                self.send_header("content-type", "application/json")
-                self.send_header("content-length", str(len(data)))
-                self.end_headers()
-                self.wfile.write(data)
-            except (BrokenPipeError, ConnectionResetError):
-                pass  # the loop cancelled this verification after an early exit; nobody reads it
+            send_json(self, status, payload)  # after an early exit the loop may have hung up already
 
         def log_message(self, *args):
             pass

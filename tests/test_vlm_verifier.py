@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from _local_http import scrub_env, serving
+from _local_http import scrub_env, send_json, serving
 
 from seal.errors import InvalidInput
 from seal.verify.base import VerifyRequest
@@ -143,15 +143,7 @@ def _make_handler(server: FakeServer):
                     server.in_flight -= 1
 
         def _send(self, status: int, payload: dict):
-            data = json.dumps(payload).encode()
-            try:
-                self.send_response(status)
-                self.send_header("content-type", "application/json")
-                self.send_header("content-length", str(len(data)))
-                self.end_headers()
-                self.wfile.write(data)
-            except (BrokenPipeError, ConnectionResetError):
-                pass  # the client gave up (timeout tests)
+            send_json(self, status, payload)  # the client may have given up (timeout tests)
 
         def log_message(self, *args):  # keep test output quiet
             pass
