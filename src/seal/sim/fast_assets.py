@@ -26,7 +26,7 @@ import numpy as np
 
 from seal.sim.render import VISIBLE_GEOM_GROUPS
 
-CACHE_VERSION = 6
+CACHE_VERSION = 7
 
 
 @dataclass(frozen=True)
@@ -117,6 +117,7 @@ class _Mesh:
     face_normals: np.ndarray  # (nf, 3) into normals
     texcoords: np.ndarray | None = None  # (nt, 2)
     face_texcoords: np.ndarray | None = None  # (nf, 3) into texcoords
+    source_faces: np.ndarray | None = None  # (nf,) after decimation: the original face each one is
 
 
 def _mesh_in_file_frame(model: mujoco.MjModel, i: int) -> _Mesh:
@@ -154,23 +155,42 @@ def _decimated_mesh(model, i: int, elem, settings: FastRenderSettings, out: Path
     if path.is_file():
         return path
     # Quadric decimation sometimes eats large flat parts of a non-manifold scene mesh (a
-    # floor, a table top). Surface area is a cheap witness: if too much of it went missing,
-    # keep twice as many faces and try again, up to the original mesh.
-    area = _area(mesh)
+    # floor, a table top, one piece of furniture in a room mesh). Surface area is a cheap
+    # witness, taken per connected part (a room mesh's lamp may vanish within 3% of the whole
+    # room's area): if any sizeable part lost too much, keep twice as many faces and try again,
+    # up to the original mesh.
+    parts, part_area = _parts(mesh)
+    sizeable = part_area >= 0.002 * part_area.sum()
     target = max(settings.min_faces, int(len(mesh.faces) * settings.face_ratio))
     out_mesh = mesh
     while target < len(mesh.faces):
         out_mesh = _simplify(mesh, 1.0 - target / len(mesh.faces))
-        if abs(_area(out_mesh) - area) <= settings.max_area_change * area:
+        kept = np.bincount(parts[out_mesh.source_faces], weights=_face_areas(out_mesh), minlength=len(part_area))
+        if np.all(np.abs(kept - part_area)[sizeable] <= settings.max_area_change * part_area[sizeable]):
             break
         target, out_mesh = target * 2, mesh
     _atomic_write(path, _obj_bytes(out_mesh))
     return path
 
 
-def _area(mesh: _Mesh) -> float:
+def _face_areas(mesh: _Mesh) -> np.ndarray:
     tri = mesh.verts[mesh.faces]
-    return float(np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum() / 2)
+    return np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1) / 2
+
+
+def _parts(mesh: _Mesh) -> tuple[np.ndarray, np.ndarray]:
+    """Connected part of each face (faces sharing a vertex position) and each part's area."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    _, weld = np.unique(np.round(mesh.verts, 5), axis=0, return_inverse=True)
+    corners = weld.reshape(-1)[mesh.faces]
+    n = int(corners.max()) + 1
+    edges = np.concatenate([corners[:, [0, 1]], corners[:, [1, 2]]])
+    graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    _, vertex_part = connected_components(graph, directed=False)
+    parts = vertex_part[corners[:, 0]]
+    return parts, np.bincount(parts, weights=_face_areas(mesh))
 
 
 def _simplify(mesh: _Mesh, reduction: float) -> _Mesh:
@@ -201,6 +221,7 @@ def _simplify(mesh: _Mesh, reduction: float) -> _Mesh:
         face_normals=mesh.face_normals[rows],
         texcoords=mesh.texcoords,
         face_texcoords=None if mesh.face_texcoords is None else mesh.face_texcoords[rows],
+        source_faces=rows,
     )
 
 
