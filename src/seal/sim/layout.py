@@ -13,10 +13,10 @@ only time, qpos and qvel, so two things from that reset live on into the episode
   rotation part is exactly zero, as in the 10 settle steps, so the wrist turns toward that pose.
 
 Both depend on how many resets came before: episode i starts after i + 1 of them. openpi's resets
-are hard ones (the scene is recompiled, ~2 s each), and LIBERO appends its object-property
+are hard ones (the scene is recompiled each time), and LIBERO appends its object-property
 samplers (drawer and door openings, stove knobs) to a list it never clears at each recompile, so
 the r-th reset draws r + 1 times per sampler. ``OpenpiStarts`` replays exactly those draws, in
-the same order, on soft resets that take milliseconds; ``tests/test_pixels.py`` checks the
+the same order, on soft resets (no recompile); ``tests/test_pixels.py`` checks the
 result against the package's own hard-reset path.
 """
 
