@@ -119,10 +119,14 @@ def _rows(db: Path) -> list:
 
 
 def _decisions(trace: Path) -> list[tuple]:
-    """What the loop decided, without clock times or snapshot ids."""
+    """What the loop decided, without clock times or snapshot ids.
+
+    A losing candidate's verdict is left out: verification runs on a background thread, and
+    whether it was in or was cancelled when another candidate passed first depends on thread
+    timing (seen under load). The winner's verdict is in its commit event."""
     out = []
     for e in map(json.loads, trace.read_text().splitlines()):
-        verdict = e.get("verdict") or {}
+        verdict = (e.get("verdict") or {}) if e["event"] != "candidate" else {}
         out.append((e["event"], e.get("slot"), e.get("round"), e.get("steps"), e.get("ended_by"), e.get("text"),
                     verdict.get("success"), e.get("success")))
     return out
