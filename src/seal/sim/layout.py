@@ -26,6 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from seal.errors import InvalidInput
+
 OPENPI_SEED = 7  # openpi's examples/libero/main.py default
 
 
@@ -54,16 +56,15 @@ def fixture_bodies(env) -> list[int]:
     return [model.body_name2id(env.fixtures_dict[name].root_body) for name in sorted(env.fixtures_dict)]
 
 
-def read_fixtures(env) -> np.ndarray:
-    model, ids = env.sim.model, fixture_bodies(env)
-    return np.concatenate([model.body_pos[ids], model.body_quat[ids]], axis=1).copy()
+def read_fixtures(model, ids: list[int]) -> np.ndarray:
+    """Poses of bodies ``ids`` (``fixture_bodies``) of a MuJoCo ``model``, as an (n, 7) array."""
+    return np.concatenate([model.body_pos[ids], model.body_quat[ids]], axis=1)
 
 
-def write_fixtures(env, fixtures: np.ndarray) -> None:
-    model, ids = env.sim.model, fixture_bodies(env)
+def write_fixtures(model, ids: list[int], fixtures: np.ndarray) -> None:
     fixtures = np.asarray(fixtures, dtype=np.float64)
     if fixtures.shape != (len(ids), 7):
-        raise ValueError(f"fixture placements must have shape ({len(ids)}, 7), got {fixtures.shape}")
+        raise InvalidInput(f"fixture placements must have shape ({len(ids)}, 7), got {fixtures.shape}")
     model.body_pos[ids] = fixtures[:, :3]
     model.body_quat[ids] = fixtures[:, 3:]
 
@@ -97,6 +98,7 @@ class OpenpiStarts:
 
     def __init__(self, env, seed: int = OPENPI_SEED):
         self._env = env
+        self._fixtures = fixture_bodies(env)
         self._samplers = list(env.object_property_initializers)
         self._copies = 1  # the env's constructor loaded the scene once
         self._rng = NumpyGlobalRNG(seed)
@@ -126,4 +128,4 @@ class OpenpiStarts:
                 env.object_property_initializers = self._samplers
         controller = env.robots[0].controller
         cached = {name: np.array(getattr(controller, name), dtype=np.float64) for name in CONTROLLER_STATE}
-        return EpisodeStart(read_fixtures(env), cached)
+        return EpisodeStart(read_fixtures(env.sim.model, self._fixtures), cached)

@@ -136,6 +136,7 @@ class LiberoWorld:
             physics.apply(self.model)
         self._init_states: np.ndarray | None = None  # loaded on first use (generators have none yet)
         self._starts = layout.OpenpiStarts(self._env)  # per-episode fixture placements, on demand
+        self._fixtures = layout.fixture_bodies(self._env)  # their bodies, read on every snapshot
         self._view = ViewClock(self._env)  # the instant observations show (seal.sim.view)
         self._renderer: SceneRenderer | None = None
         self._scene: SceneReader | None = None  # built on first privileged read
@@ -198,7 +199,7 @@ class LiberoWorld:
                                f"got {state.shape}")
         env = self._env
         if start is not None:
-            layout.write_fixtures(env, start.fixtures)
+            layout.write_fixtures(self.model, self._fixtures, start.fixtures)
         # A fresh MjData's state: no warm start, ctrl or forces left over from earlier episodes.
         mujoco.mj_resetData(self.model, self.data)
         env.sim.set_state_from_flattened(state)
@@ -253,7 +254,7 @@ class LiberoWorld:
             steps=self._steps,
             goal_ori=np.array(env.robots[0].controller.goal_ori, dtype=np.float64),
             goal_pos=np.array(env.robots[0].controller.goal_pos, dtype=np.float64),
-            fixtures=layout.read_fixtures(env),
+            fixtures=layout.read_fixtures(self.model, self._fixtures),
             view=self._view.get(),
         )
 
@@ -262,7 +263,7 @@ class LiberoWorld:
             raise InvalidInput(f"snapshot of task {snap.task_key} cannot be restored into {self.task.key}")
         env = self._env
         if snap.fixtures is not None:
-            layout.write_fixtures(env, snap.fixtures)
+            layout.write_fixtures(self.model, self._fixtures, snap.fixtures)
         mujoco.mj_setState(self.model, self.data, snap.physics, _STATE_SPEC)
         env.robots[0].gripper.current_action = snap.gripper_action.copy()
         env.timestep, env.cur_time, env.done = snap.timestep, snap.cur_time, False
