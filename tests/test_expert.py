@@ -122,5 +122,9 @@ def test_demos_record_writes_lerobot_and_resumes(tmp_path):
 
 def test_demos_record_refuses_bad_counts_before_any_work(tmp_path):
     with pytest.raises(InvalidInput, match="must be in 1..50, got 51"):
-        record_demos("libero_10", tmp_path / "d", episodes_per_task=51, tasks=[5])
+        record_demos("libero_10", tmp_path / "d", episodes_per_task=51, tasks=[5], starts="official")
+    with pytest.raises(InvalidInput, match="got 0"):
+        record_demos("libero_10", tmp_path / "d", episodes_per_task=0, tasks=[5])
+    with pytest.raises(InvalidInput, match="valid: sampled, official"):
+        record_demos("libero_10", tmp_path / "d", episodes_per_task=1, tasks=[5], starts="evaluation")
     assert not (tmp_path / "d").exists()

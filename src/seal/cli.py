@@ -70,7 +70,8 @@ def _cmd_demos(args) -> int:
 
         summary = record_demos(args.suite, Path(args.out), episodes_per_task=args.episodes_per_task, tasks=tasks,
                                knobs=FailureKnobs.named(args.knobs), progress=progress,
-                               keep_failures=args.keep_failures)
+                               keep_failures=args.keep_failures, starts=args.starts, image_size=args.image_size,
+                               render_mode=args.render, workers=args.workers)
     print(json.dumps(summary.__dict__))
     return 0
 
@@ -330,6 +331,15 @@ def _add_demos(sub) -> None:
     rec.add_argument("--out", required=True)
     rec.add_argument("--keep-failures", action="store_true",
                      help="also write failed episodes (meta success=false), e.g. as contrast for value learning")
+    rec.add_argument("--starts", default="sampled", choices=["sampled", "official"],
+                     help="sampled: objects and fixtures placed afresh from seeds (training data; no official "
+                          "init state); official: LIBERO's init state e for episode e (evaluation states)")
+    rec.add_argument("--image-size", type=int, default=None,
+                     help="render both cameras at this many px (e.g. 64 for a 64-px policy; lossless video); "
+                          "default: openpi's 224-px view")
+    rec.add_argument("--render", default="stock", choices=["stock", "fast"],
+                     help="render model; record in the one the policy will be evaluated in")
+    rec.add_argument("--workers", type=int, default=1, help="episodes recorded in parallel (one simulator each)")
     rec.set_defaults(func=_cmd_demos)
 
 

@@ -1,15 +1,30 @@
-"""Record scripted-expert demonstrations into a LeRobot dataset, resumably.
+"""Record scripted-expert demonstrations into a LeRobot dataset, resumably, on worker processes.
 
-Episode e of task t starts from official init state e. An episode is written only when it
-succeeds (like the filtered LIBERO datasets the paper annotates), unless failures are asked for
-too (value learning wants them as contrast); every attempt is logged in
-``meta/seal_attempts.jsonl`` so a re-run skips it too instead of retrying forever. Re-running the
-same command continues where it stopped.
+Where an episode starts:
+
+- ``starts="sampled"`` (the default, for training data): objects *and* fixtures placed afresh by
+  LIBERO's own samplers from a seed derived from the task and the episode number
+  (`LiberoWorld.reset_sampled`), so no official init state and no openpi evaluation layout is
+  ever in a training set; the seed actually used is kept in the episode's meta;
+- ``starts="official"``: official init state e for episode e (the paper's LIBERO datasets do
+  this; fine for annotation demos, never for training what is then evaluated on those states).
+
+An episode is written only when it succeeds (like the filtered LIBERO datasets the paper
+annotates), unless failures are asked for too (value learning wants them as contrast); every
+attempt is logged in ``meta/seal_attempts.jsonl`` so a re-run skips it too instead of retrying
+forever. Re-running the same command continues where it stopped.
+
+Frames are openpi's 224-px view by default, or both cameras rendered directly at ``image_size``
+(e.g. 64 for a policy trained at 64 px; such datasets store lossless video). With ``workers`` > 1
+episodes run in that many processes (one simulator each); the writer stays in this process.
 """
 
 from __future__ import annotations
 
 import json
+import multiprocessing
+import zlib
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -23,6 +38,8 @@ from seal.sim.suites import get_task, task_count
 from seal.sim.world import LiberoWorld
 
 ATTEMPTS = "meta/seal_attempts.jsonl"
+STARTS = ("sampled", "official")
+SEED_STRIDE = 1000  # seeds of consecutive episodes lie this far apart (a start may skip a few draws)
 
 
 @dataclass
@@ -30,6 +47,23 @@ class RecordSummary:
     recorded: int = 0
     failed: int = 0
     skipped: int = 0
+
+
+@dataclass(frozen=True)
+class _Job:
+    suite: str
+    task_id: int
+    episode: int  # the init index (official starts) or the episode number (sampled starts)
+    start_seed: int | None
+    knobs: FailureKnobs
+    render_mode: str
+    image_size: int | None
+
+
+def start_seed(task_key: str, episode: int) -> int:
+    """First seed tried for a sampled start: stable across machines, distinct per task and episode,
+    and apart from the seeds evaluation suites draw their init states from (`seal.sim.generate`)."""
+    return (zlib.crc32(f"train:{task_key}".encode()) % 1_000_000) * 1_000_000 + episode * SEED_STRIDE
 
 
 def _attempted(root: Path) -> set[tuple[str, int, int]]:
@@ -46,59 +80,117 @@ def _attempted(root: Path) -> set[tuple[str, int, int]]:
     return done
 
 
+# One world per process, rebuilt only when the task changes (jobs come sorted by task).
+_WORLD: dict = {}
+
+
+def _run_job(job: _Job) -> tuple[_Job, dict, Episode | None]:
+    world = _WORLD.get("world")
+    if world is None or world.task.key != get_task(job.suite, job.task_id).key or world.render_mode != job.render_mode:
+        if world is not None:
+            world.close()
+        world = _WORLD["world"] = LiberoWorld(get_task(job.suite, job.task_id), render_mode=job.render_mode)
+    policy = ScriptedExpert.for_world(world, job.knobs)
+    rec = Recording()
+    result = run_policy_episode(world, policy, init_index=job.episode, recording=rec,
+                                start_seed=job.start_seed, image_size=job.image_size)
+    attempt = {"suite": job.suite, "task_id": job.task_id, "init_index": job.episode, "success": result.success,
+               "steps": result.steps, "sim_error": result.sim_error, "start_seed": result.start_seed}
+    if not rec.actions:
+        return job, attempt, None
+    episode = Episode(
+        instruction=world.instruction,
+        agent_images=np.stack(rec.agent), wrist_images=np.stack(rec.wrist),
+        states=np.stack(rec.states), actions=np.clip(np.stack(rec.actions), -1, 1),
+        subplans=result.subplans,
+        # critical frames are steps after which the sub-goal held; as frame indices
+        # they point at the frame observed right after that step
+        critical_frames=[min(f, len(rec.actions) - 1) if f >= 0 else -1 for f in result.critical_frames],
+        meta={"suite": job.suite, "task_id": job.task_id, "init_index": job.episode,
+              "start": "official" if job.start_seed is None else "sampled", "start_seed": result.start_seed,
+              "render_mode": job.render_mode, "image_size": job.image_size or 224,
+              "steps": result.steps, "success": bool(result.success), "knobs": job.knobs.__dict__,
+              # what the expert wrote at each <think>: (step, text) pairs
+              "reasoning": [[int(s), t] for s, t in result.reasoning]},
+    )
+    return job, attempt, episode
+
+
+def _close_world() -> None:
+    world = _WORLD.pop("world", None)
+    if world is not None:
+        world.close()
+
+
 def record_demos(suite: str, out: Path, *, episodes_per_task: int, tasks: list[int] | None = None,
                  knobs: FailureKnobs | None = None, progress=None, render_mode: str = "stock",
-                 keep_failures: bool = False) -> RecordSummary:
+                 keep_failures: bool = False, starts: str = "sampled", image_size: int | None = None,
+                 workers: int = 1) -> RecordSummary:
     """Record expert episodes; ``keep_failures`` also writes failed ones (meta ``success`` False),
     which offline RL (the V-GPS value function) needs as contrast to the successes."""
+    if starts not in STARTS:
+        raise InvalidInput(f"unknown starts {starts!r}; valid: {', '.join(STARTS)}")
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise InvalidInput(f"workers must be a positive integer, got {workers!r}")
     tasks = list(range(task_count(suite))) if tasks is None else tasks
     specs = [get_task(suite, t) for t in tasks]  # validates every id before any work
     for spec in specs:
-        n = spec.init_states().shape[0]
+        n = spec.init_states().shape[0] if starts == "official" else 10_000
         if not 1 <= episodes_per_task <= n:
             raise InvalidInput(f"{spec.key} has {n} init states; --episodes-per-task must be in 1..{n}, "
                                f"got {episodes_per_task}")
+    knobs = knobs or FailureKnobs()
     out.mkdir(parents=True, exist_ok=True)
     summary = RecordSummary()
-    with LeRobotWriter(out, fps=20) as writer:
+    with LeRobotWriter(out, fps=20, image_size=image_size or 224) as writer:
         attempted = _attempted(out)
+        jobs = []
         for spec in specs:
             todo = [e for e in range(episodes_per_task) if (suite, spec.task_id, e) not in attempted]
             summary.skipped += episodes_per_task - len(todo)
             if progress:
                 progress(spec, summary, advance=episodes_per_task - len(todo))
-            if not todo:
-                continue
-            world = LiberoWorld(spec, render_mode=render_mode)
-            policy = ScriptedExpert.for_world(world, knobs)
+            jobs += [_Job(suite, spec.task_id, e, None if starts == "official" else start_seed(spec.key, e),
+                          knobs, render_mode, image_size) for e in todo]
+
+        def finish(job: _Job, attempt: dict, episode: Episode | None) -> None:
+            if episode is not None and (attempt["success"] or keep_failures):
+                writer.add(episode)
+                summary.recorded += 1
+            summary.failed += not attempt["success"]
+            with open(out / ATTEMPTS, "a") as f:  # after the episode: a crash between redoes it
+                f.write(json.dumps(attempt) + "\n")
+            if progress:
+                progress(get_task(suite, job.task_id), summary, advance=1)
+
+        if workers == 1:
             try:
-                for e in todo:
-                    rec = Recording()
-                    result = run_policy_episode(world, policy, init_index=e, recording=rec)
-                    if result.success or keep_failures:
-                        writer.add(Episode(
-                            instruction=spec.instruction,
-                            agent_images=np.stack(rec.agent), wrist_images=np.stack(rec.wrist),
-                            states=np.stack(rec.states), actions=np.clip(np.stack(rec.actions), -1, 1),
-                            subplans=result.subplans,
-                            # critical frames are steps after which the sub-goal held; as frame indices
-                            # they point at the frame observed right after that step
-                            critical_frames=[min(f, len(rec.actions) - 1) if f >= 0 else -1
-                                             for f in result.critical_frames],
-                            meta={"suite": suite, "task_id": spec.task_id, "init_index": e,
-                                  "steps": result.steps, "success": bool(result.success),
-                                  "knobs": (knobs or FailureKnobs()).__dict__,
-                                  # what the expert wrote at each <think>: (step, text) pairs
-                                  "reasoning": [[int(s), t] for s, t in result.reasoning]},
-                        ))
-                        summary.recorded += 1
-                    summary.failed += not result.success
-                    with open(out / ATTEMPTS, "a") as f:
-                        f.write(json.dumps({"suite": suite, "task_id": spec.task_id, "init_index": e,
-                                            "success": result.success, "steps": result.steps,
-                                            "sim_error": result.sim_error}) + "\n")
-                    if progress:
-                        progress(spec, summary, advance=1)
+                for job in jobs:
+                    finish(*_run_job(job))
             finally:
-                world.close()
+                _close_world()
+        else:
+            _run_parallel(jobs, workers, finish)
     return summary
+
+
+def _run_parallel(jobs: list[_Job], workers: int, finish) -> None:
+    # Spawned workers: a forked MuJoCo/EGL context is not safe to reuse. Each worker keeps its
+    # world between jobs; jobs of one task go to the pool together so worlds are rarely rebuilt.
+    ctx = multiprocessing.get_context("spawn")
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
+    pending, queue = set(), list(jobs)
+    interrupted = False
+    try:
+        while queue or pending:
+            while queue and len(pending) < 2 * workers:  # a short queue: Ctrl-C loses little
+                pending.add(pool.submit(_run_job, queue.pop(0)))
+            done, pending = wait(pending, return_when=FIRST_COMPLETED)
+            for fut in done:
+                finish(*fut.result())
+    except BaseException:
+        interrupted = True
+        raise
+    finally:
+        # on Ctrl-C or an error do not wait for episodes in flight: what is written is complete
+        pool.shutdown(wait=not interrupted, cancel_futures=True)

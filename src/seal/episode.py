@@ -34,6 +34,7 @@ class EpisodeResult:
     reasoning: list[tuple[int, str]] = field(default_factory=list)  # (step, reasoning text) at each <think>
     goal_status: dict = field(default_factory=dict)
     video: str = ""
+    start_seed: int | None = None  # set when the start was sampled rather than an official init state
 
 
 @dataclass
@@ -48,17 +49,26 @@ class Recording:
 
 def run_policy_episode(world: LiberoWorld, policy, *, init_index: int, max_steps: int | None = None,
                        recording: Recording | None = None, video_path: Path | None = None,
-                       progress=None) -> EpisodeResult:
-    """Run ``policy`` (a ReasoningPolicy) alone for one episode; optionally record every frame."""
+                       progress=None, start_seed: int | None = None,
+                       image_size: int | None = None) -> EpisodeResult:
+    """Run ``policy`` (a ReasoningPolicy) alone for one episode; optionally record every frame.
+
+    The episode starts from official init state ``init_index``, or, with ``start_seed``, from a
+    freshly sampled start (`LiberoWorld.reset_sampled`; training data). Recorded frames are
+    openpi's 224-px view, or both cameras rendered at ``image_size`` px."""
     max_steps = max_steps or world.task.max_steps
     start = time.perf_counter()
-    world.reset(init_index)
-    policy.reset(world.instruction, seed=init_index)
+    if start_seed is None:
+        world.reset(init_index)
+    else:
+        start_seed = world.reset_sampled(start_seed)
+    policy.reset(world.instruction, seed=init_index if start_seed is None else start_seed)
     atoms = policy.privileged_atoms() if hasattr(policy, "privileged_atoms") else None
     writer = imageio.get_writer(video_path, fps=10, macro_block_size=1) if video_path else None
     result = EpisodeResult(task=world.task.key, instruction=world.instruction, init_index=init_index,
-                           success=False, sim_error=False, steps=0, wall_s=0.0, video=str(video_path or ""))
-    need_images = recording is not None or writer is not None
+                           success=False, sim_error=False, steps=0, wall_s=0.0, video=str(video_path or ""),
+                           start_seed=start_seed)
+    need_images = (image_size or True) if (recording is not None or writer is not None) else False
     try:
         obs = world.observe(images=need_images, privileged_atoms=atoms)
         reasoning = policy.reason(obs)

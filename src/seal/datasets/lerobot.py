@@ -66,6 +66,11 @@ VIDEO_CODEC_NAME = "h264"  # what the stream reports; what LeRobot writes into i
 PIX_FMT = "yuv420p"
 CRF = 20
 GOP = 2
+# Below 224 px (a policy trained at 64 px) the frames are the training data itself, and 4:2:0
+# chroma at 32x32 is far from what the policy sees at run time (up to 59 levels off on a 64-px
+# render). There the video is lossless RGB H.264 (libx264rgb, crf 0): bit-exact, ~3 KB a frame.
+LOSSLESS_BELOW = 224
+LOSSLESS_CODEC, LOSSLESS_PIX_FMT = "libx264rgb", "rgb24"
 STATS_MAX_IMAGE_SAMPLES = 100  # LeRobot estimates image stats from <= ~100 evenly spaced frames
 
 _EPISODE_FILE = re.compile(r"episode_(\d{6})\.(parquet|mp4)$")
@@ -89,12 +94,15 @@ class Episode:
         return len(self.states)
 
 
-def _features(fps: int) -> dict[str, dict]:
+def _features(fps: int, image_size: int = IMAGE_SHAPE[0]) -> dict[str, dict]:
     """The info.json `features` block; the same keys, dtypes and shapes LeRobot v2.1 writes."""
-    video_info = {"video.height": IMAGE_SHAPE[0], "video.width": IMAGE_SHAPE[1],
-                  "video.codec": VIDEO_CODEC_NAME, "video.pix_fmt": PIX_FMT, "video.is_depth_map": False,
-                  "video.fps": fps, "video.channels": IMAGE_SHAPE[2], "has_audio": False}
-    video = {"dtype": "video", "shape": list(IMAGE_SHAPE), "names": ["height", "width", "channels"],
+    shape = (image_size, image_size, 3)
+    video_info = {"video.height": shape[0], "video.width": shape[1],
+                  "video.codec": VIDEO_CODEC_NAME,
+                  "video.pix_fmt": LOSSLESS_PIX_FMT if image_size < LOSSLESS_BELOW else PIX_FMT,
+                  "video.is_depth_map": False,
+                  "video.fps": fps, "video.channels": shape[2], "has_audio": False}
+    video = {"dtype": "video", "shape": list(shape), "names": ["height", "width", "channels"],
              "info": video_info}
     scalar = {"shape": [1], "names": None}
     return {
@@ -185,14 +193,14 @@ def _json_default(obj: Any) -> Any:
     raise TypeError(f"{type(obj).__name__} is not JSON serializable")
 
 
-def encode_video(frames: np.ndarray, path: Path, fps: int) -> None:
+def encode_video(frames: np.ndarray, path: Path, fps: int, *, lossless: bool = False) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
     with av.open(str(tmp), mode="w", format="mp4") as container:
-        stream = container.add_stream(VIDEO_CODEC, rate=fps)
+        stream = container.add_stream(LOSSLESS_CODEC if lossless else VIDEO_CODEC, rate=fps)
         stream.height, stream.width = frames.shape[1:3]
-        stream.pix_fmt = PIX_FMT
-        stream.options = {"crf": str(CRF), "g": str(GOP)}
+        stream.pix_fmt = LOSSLESS_PIX_FMT if lossless else PIX_FMT
+        stream.options = {"crf": "0" if lossless else str(CRF), "g": str(GOP)}
         for image in frames:
             container.mux(stream.encode(av.VideoFrame.from_ndarray(image, format="rgb24")))
         container.mux(stream.encode())  # flush the encoder's delayed frames
@@ -262,7 +270,7 @@ def _check_array(name: str, value: Any, shape: tuple, dtype: type, T: int | None
     return len(value)
 
 
-def validate_episode(episode: Episode) -> None:
+def validate_episode(episode: Episode, image_size: int = IMAGE_SHAPE[0]) -> None:
     """Raise InvalidInput naming the first problem that would make `episode` unwritable."""
     if not isinstance(episode, Episode):
         raise InvalidInput(f"expected a seal.datasets.Episode, got {type(episode).__name__}")
@@ -272,8 +280,9 @@ def validate_episode(episode: Episode) -> None:
     if T == 0:
         raise InvalidInput("Episode.states is empty; an episode needs at least one frame")
     _check_array("actions", episode.actions, (ACTION_DIM,), np.float32, T)
-    _check_array("agent_images", episode.agent_images, IMAGE_SHAPE, np.uint8, T)
-    _check_array("wrist_images", episode.wrist_images, IMAGE_SHAPE, np.uint8, T)
+    shape = (image_size, image_size, 3)
+    _check_array("agent_images", episode.agent_images, shape, np.uint8, T)
+    _check_array("wrist_images", episode.wrist_images, shape, np.uint8, T)
     if not np.isfinite(episode.states).all():
         raise InvalidInput("Episode.states contains NaN or Inf; only finite values can be stored")
     if not np.isfinite(episode.actions).all() or np.abs(episode.actions).max() > 1.0:
@@ -307,9 +316,13 @@ class LeRobotWriter:
     time (an advisory lock on meta/.writer.lock); `close()` or leaving a `with` block releases it.
     """
 
-    def __init__(self, root: Path, *, fps: int = 20, robot_type: str = "panda") -> None:
+    def __init__(self, root: Path, *, fps: int = 20, robot_type: str = "panda",
+                 image_size: int = IMAGE_SHAPE[0]) -> None:
         if isinstance(fps, bool) or not isinstance(fps, int) or fps <= 0:
             raise InvalidInput(f"fps must be a positive integer, got {fps!r}")
+        if isinstance(image_size, bool) or not isinstance(image_size, int) or not 16 <= image_size <= 1024:
+            raise InvalidInput(f"image_size must be an integer in 16..1024 (px per side), got {image_size!r}")
+        self.image_size = image_size
         self.root = Path(root)
         self.fps = fps
         self.robot_type = robot_type
@@ -352,7 +365,7 @@ class LeRobotWriter:
             differences.append(f"fps is {info.get('fps')!r} there, {self.fps!r} requested")
         if info.get("robot_type") != self.robot_type:
             differences.append(f"robot_type is {info.get('robot_type')!r} there, {self.robot_type!r} requested")
-        expected = _features(self.fps)
+        expected = _features(self.fps, self.image_size)
         theirs = info.get("features", {})
         for key in sorted(set(expected) | set(theirs)):
             mine, other = expected.get(key), theirs.get(key)
@@ -412,16 +425,17 @@ class LeRobotWriter:
         """Write `episode` to disk now and return its episode_index."""
         if self._lock.closed:
             raise InvalidInput(f"this LeRobotWriter on {self.root} is closed")
-        validate_episode(episode)
+        validate_episode(episode, self.image_size)
         index = len(self._episodes)
         chunk = index // CHUNKS_SIZE
         T = episode.length
         task_index = self._tasks.get(episode.instruction, len(self._tasks))
 
+        lossless = self.image_size < LOSSLESS_BELOW
         encode_video(episode.agent_images, self.root / VIDEO_PATH.format(
-            episode_chunk=chunk, video_key=AGENT_VIDEO_KEY, episode_index=index), self.fps)
+            episode_chunk=chunk, video_key=AGENT_VIDEO_KEY, episode_index=index), self.fps, lossless=lossless)
         encode_video(episode.wrist_images, self.root / VIDEO_PATH.format(
-            episode_chunk=chunk, video_key=WRIST_VIDEO_KEY, episode_index=index), self.fps)
+            episode_chunk=chunk, video_key=WRIST_VIDEO_KEY, episode_index=index), self.fps, lossless=lossless)
 
         frame_index = np.arange(T, dtype=np.int64)
         columns = {
@@ -479,7 +493,7 @@ class LeRobotWriter:
             "splits": {"train": f"0:{n}"},
             "data_path": DATA_PATH,
             "video_path": VIDEO_PATH,
-            "features": _features(self.fps),
+            "features": _features(self.fps, self.image_size),
         }
         _write_json_atomic(self.root / "meta" / "info.json", info)
 
@@ -524,6 +538,11 @@ class LeRobotReader:
     @property
     def num_episodes(self) -> int:
         return len(self._episodes)
+
+    @property
+    def image_size(self) -> int:
+        """Side in px of the camera frames (224 for openpi-view datasets, 64 for a 64-px policy's)."""
+        return int(self.info.get("features", {}).get(AGENT_VIDEO_KEY, {}).get("shape", IMAGE_SHAPE)[0])
 
     def __len__(self) -> int:
         return len(self._episodes)

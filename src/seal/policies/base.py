@@ -63,6 +63,10 @@ class ReasoningPolicy(Protocol):
     Built by name with `seal.policies.make_policy`."""
 
     thinks: bool  # False: never emits <think> (plain pi0 + a planner); the verifier ends its sub-plans
+    # Optional (read with getattr, default None): the side in px at which the policy wants both
+    # cameras rendered (a model trained at 64 px gets 64-px renders, not a 224 it would shrink);
+    # None: openpi's 224-px view.
+    # image_size: int | None
 
     def close(self) -> None:
         """Release what the policy holds (sockets, threads); a no-op for in-process policies."""

@@ -26,7 +26,7 @@ import numpy as np
 
 from seal.sim.render import VISIBLE_GEOM_GROUPS
 
-CACHE_VERSION = 7
+CACHE_VERSION = 10
 
 
 @dataclass(frozen=True)
@@ -35,6 +35,9 @@ class FastRenderSettings:
     min_faces: int = 200  # ... but never fewer than this (small meshes stay intact)
     texture_max: int = 256  # longest side of any texture image, in pixels
     max_area_change: float = 0.03  # a decimated mesh must keep its surface area within 3%
+    # ... and 95% of its original vertices within this distance (metres) of the new surface:
+    # ~a tenth of what one policy-resolution pixel covers on the table from the agent camera.
+    max_deviation: float = 0.001
     # Decimation slides texture coordinates (labels and wood grain smear); False keeps textured
     # meshes whole, which `seal bench sim` uses to measure what that costs and gains.
     decimate_textured: bool = True
@@ -150,7 +153,7 @@ def _decimated_mesh(model, i: int, elem, settings: FastRenderSettings, out: Path
     mesh = _mesh_in_file_frame(model, i)
     src = Path(elem.get("file"))
     key = _key(src.read_bytes() if src.is_file() else str(src), elem.get("scale"), elem.get("refpos"),
-               elem.get("refquat"), settings.face_ratio, settings.min_faces, settings.max_area_change, mesh.verts.tobytes()[:4096])
+               elem.get("refquat"), settings.face_ratio, settings.min_faces, settings.max_area_change, settings.max_deviation, mesh.verts.tobytes()[:4096])
     path = out / f"{src.stem}-{key}.obj"
     if path.is_file():
         return path
@@ -166,11 +169,32 @@ def _decimated_mesh(model, i: int, elem, settings: FastRenderSettings, out: Path
     while target < len(mesh.faces):
         out_mesh = _simplify(mesh, 1.0 - target / len(mesh.faces))
         kept = np.bincount(parts[out_mesh.source_faces], weights=_face_areas(out_mesh), minlength=len(part_area))
-        if np.all(np.abs(kept - part_area)[sizeable] <= settings.max_area_change * part_area[sizeable]):
+        if (np.all(np.abs(kept - part_area)[sizeable] <= settings.max_area_change * part_area[sizeable])
+                and np.percentile(_deviation(mesh, out_mesh), 95) <= settings.max_deviation):
             break
         target, out_mesh = target * 2, mesh
     _atomic_write(path, _obj_bytes(out_mesh))
     return path
+
+
+def _deviation(mesh: _Mesh, simple: _Mesh, k: int = 4) -> np.ndarray:
+    """How far (metres) each original vertex lies from the decimated surface, approximately:
+    the distance to the plane of the closest of the ``k`` decimated faces with the nearest centres.
+
+    Flat regions cost nothing (their vertices lie on the new faces' planes); a woven basket's
+    strands or a grille's ribs do, so such meshes keep the faces their shading depends on.
+    """
+    from scipy.spatial import cKDTree
+
+    tri = simple.verts[simple.faces]
+    centres = tri.mean(axis=1)
+    normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+    k = min(k, len(centres))
+    _, near = cKDTree(centres).query(mesh.verts, k=k)
+    near = near.reshape(len(mesh.verts), k)
+    planes = np.abs(np.einsum("vkj,vkj->vk", mesh.verts[:, None, :] - centres[near], normals[near]))
+    return planes.min(axis=1)
 
 
 def _face_areas(mesh: _Mesh) -> np.ndarray:
@@ -214,15 +238,58 @@ def _simplify(mesh: _Mesh, reduction: float) -> _Mesh:
     keep = (mapped[:, 0] != mapped[:, 1]) & (mapped[:, 1] != mapped[:, 2]) & (mapped[:, 0] != mapped[:, 2])
     _, first = np.unique(np.sort(mapped[keep], axis=1), axis=0, return_index=True)
     rows = np.flatnonzero(keep)[np.sort(first)]
+    new_verts = np.asarray(new_points, dtype=np.float64)
+    corners = new_verts[mapped[rows]]  # (nk, 3, 3): where each kept corner now sits
     return _Mesh(
-        verts=np.asarray(new_points, dtype=np.float64),
+        verts=new_verts,
         faces=mapped[rows],
         normals=mesh.normals,
         face_normals=mesh.face_normals[rows],
         texcoords=mesh.texcoords,
-        face_texcoords=None if mesh.face_texcoords is None else mesh.face_texcoords[rows],
+        face_texcoords=None if mesh.face_texcoords is None else _rewire(
+            mesh.verts, mesh.faces, mesh.texcoords, mesh.face_texcoords, rows, corners),
         source_faces=rows,
     )
+
+
+def _rewire(verts, faces, values, face_values, rows, corners) -> np.ndarray:
+    """Per-corner attribute indices (texcoords or normals) for the kept faces' moved corners.
+
+    A collapse moves a vertex but leaves each surviving face with its original corners'
+    texture coordinates, so labels and wood grain slide across the surface. Instead, each
+    moved corner takes the attribute of the nearest original corner *in the same chart*: the
+    region of faces over which the attribute is continuous (faces joined by a corner with the
+    same position and the same value). Staying inside the chart keeps seams (u=0 next to u=1
+    on a can's label, a sharp edge's two normals) from bleeding into each other.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    nf = len(faces)
+    pos = np.round(verts[faces].reshape(-1, 3), 5)
+    val = np.round(values[face_values].reshape(-1, values.shape[1]), 4)
+    _, key = np.unique(np.concatenate([pos, val], axis=1), axis=0, return_inverse=True)
+    key = key.reshape(-1)
+    face_of = np.repeat(np.arange(nf), 3)
+    # faces and corner keys as one bipartite graph: a chart is a connected component of it
+    n = nf + int(key.max()) + 1
+    graph = coo_matrix((np.ones(len(key)), (face_of, nf + key)), shape=(n, n))
+    _, comp = connected_components(graph, directed=False)
+    chart = comp[:nf]
+    corner_chart = chart[face_of]
+    corner_pos = verts[faces].reshape(-1, 3)
+    corner_val = face_values.reshape(-1)
+    out = np.empty((len(rows), 3), dtype=np.int64)
+    kept_chart = chart[rows]
+    order = np.argsort(corner_chart, kind="stable")
+    bounds = np.searchsorted(corner_chart[order], np.arange(chart.max() + 2))
+    for c in np.unique(kept_chart):
+        members = order[bounds[c]:bounds[c + 1]]
+        sel = np.flatnonzero(kept_chart == c)
+        _, nearest = cKDTree(corner_pos[members]).query(corners[sel].reshape(-1, 3))
+        out[sel] = corner_val[members[nearest]].reshape(-1, 3)
+    return out
 
 
 def _obj_bytes(mesh: _Mesh) -> bytes:

@@ -129,3 +129,23 @@ class OpenpiStarts:
         controller = env.robots[0].controller
         cached = {name: np.array(getattr(controller, name), dtype=np.float64) for name in CONTROLLER_STATE}
         return EpisodeStart(read_fixtures(env.sim.model, self._fixtures), cached)
+
+
+def draw_start(env, seed: int) -> tuple[np.ndarray, EpisodeStart] | None:
+    """A start no evaluation uses: one soft reset of ``env`` on numpy's global RNG seeded with
+    ``seed`` re-samples every object placement *and* the fixture layout with LIBERO's own
+    samplers. Returns the flattened state (time, qpos, qvel) and the fixtures/controller part,
+    or None when the sampler found no collision-free placement. Training data is drawn this way
+    so that neither an official init state nor openpi's seed-7 layouts reach a training set.
+    """
+    from robosuite.utils.errors import RandomizationError
+
+    with NumpyGlobalRNG(seed % 2**32):
+        try:
+            env.reset()
+        except RandomizationError:
+            return None
+    controller = env.robots[0].controller
+    cached = {name: np.array(getattr(controller, name), dtype=np.float64) for name in CONTROLLER_STATE}
+    state = np.array(env.sim.get_state().flatten(), dtype=np.float64)
+    return state, EpisodeStart(read_fixtures(env.sim.model, fixture_bodies(env)), cached)

@@ -57,7 +57,11 @@ def quat_xyzw_to_axis_angle(quat: np.ndarray) -> np.ndarray:
     return np.asarray(quat[:3], dtype=np.float64) * 2.0 * math.acos(w) / den
 
 
+def mirror(raw: np.ndarray) -> np.ndarray:
+    """An upright render in openpi's orientation (a left-right mirror; see the module docstring)."""
+    return np.ascontiguousarray(raw[:, ::-1])
+
+
 def to_policy_image(raw: np.ndarray, size: int = IMAGE_SIZE) -> np.ndarray:
     """An upright render -> the policy's view: mirror left-right as openpi's frames are, pad-resize to ``size``."""
-    mirrored = np.ascontiguousarray(raw[:, ::-1])
-    return image_tools.convert_to_uint8(image_tools.resize_with_pad(mirrored, size, size))
+    return image_tools.convert_to_uint8(image_tools.resize_with_pad(mirror(raw), size, size))

@@ -24,6 +24,7 @@ from seal.sim.observation import (
     RENDER_SIZE,
     WRIST_CAMERA,
     Observation,
+    mirror,
     to_policy_image,
 )
 from seal.sim import background, layout
@@ -138,7 +139,8 @@ class LiberoWorld:
         self._starts = layout.OpenpiStarts(self._env)  # per-episode fixture placements, on demand
         self._fixtures = layout.fixture_bodies(self._env)  # their bodies, read on every snapshot
         self._view = ViewClock(self._env)  # the instant observations show (seal.sim.view)
-        self._renderer: SceneRenderer | None = None
+        self._renderers: dict[int, SceneRenderer] = {}  # one per image size in use (policy, verifier)
+        self._render_model: mujoco.MjModel | None = None
         self._scene: SceneReader | None = None  # built on first privileged read
         self._steps = 0
         self.goal_atoms: list[GoalAtom] = [GoalAtom.from_bddl(s) for s in self._env.parsed_problem["goal_state"]]
@@ -185,6 +187,22 @@ class LiberoWorld:
             raise InvalidInput(f"init state index {init_index!r} out of range for {self.task.key}; valid: 0..{n - 1}")
         start = self._starts[int(init_index)]
         self.reset_to_state(self.init_states[init_index], settle=settle, start=start)
+
+    def reset_sampled(self, seed: int, *, settle: bool = True, max_draws: int = 20) -> int:
+        """Start an episode no evaluation uses: objects and fixtures placed by LIBERO's samplers
+        with ``seed`` (`seal.sim.layout.draw_start`); a draw the sampler cannot place, that is
+        unstable or already solves the task is skipped for the next seed. Returns the seed used."""
+        from seal.sim.generate import check_state
+
+        for attempt in range(max_draws):
+            drawn = layout.draw_start(self._env, seed + attempt)
+            if drawn is None:
+                continue
+            state, start = drawn
+            if check_state(self, state) == "":
+                self.reset_to_state(state, settle=settle, start=start)
+                return seed + attempt
+        raise SimulationError(f"{self.task.key}: no usable start in {max_draws} draws from seed {seed}")
 
     def reset_to_state(self, state: np.ndarray, *, settle: bool = True,
                        start: layout.EpisodeStart | None = None) -> None:
@@ -291,16 +309,26 @@ class LiberoWorld:
             self._scene = SceneReader(self._env)
         return self._scene.read({str(a): self.check(a) for a in atoms})
 
-    def observe(self, *, images: bool = True, privileged_atoms=None) -> Observation:
-        """openpi-convention observation; ``privileged_atoms`` (a list, may be empty) adds the
-        scene state for scripted policies."""
+    def observe(self, *, images: bool | int = True, privileged_atoms=None) -> Observation:
+        """The observation now. ``images``: False for none; True for openpi's view (both
+        cameras rendered at 256, mirrored and resized to 224, as pi0 servers expect); an int N
+        for both cameras rendered directly at N px and mirrored the same way (what a policy
+        trained at N px consumes: no 256-px render to throw away). ``privileged_atoms`` (a list,
+        may be empty) adds the scene state for scripted policies."""
         obs = Observation(state=self.state_vector(), prompt=self.instruction)
         if privileged_atoms is not None:
             obs.scene = self.scene_state(privileged_atoms)
-        if images:
+        if images is True:
             raw = self.render_raw((AGENT_CAMERA, WRIST_CAMERA))
             obs.agent = to_policy_image(raw[AGENT_CAMERA])
             obs.wrist = to_policy_image(raw[WRIST_CAMERA])
+        elif images:
+            size = int(images)
+            if not 16 <= size <= 1024:
+                raise InvalidInput(f"image size {size} px is out of range; valid: 16..1024 (or True for openpi's 224)")
+            raw = self.render_raw((AGENT_CAMERA, WRIST_CAMERA), size=size)
+            obs.agent = mirror(raw[AGENT_CAMERA])
+            obs.wrist = mirror(raw[WRIST_CAMERA])
         return obs
 
     def render_raw(self, cameras=(AGENT_CAMERA,), size: int = RENDER_SIZE) -> dict[str, np.ndarray]:
@@ -314,19 +342,20 @@ class LiberoWorld:
             raise InvalidInput(f"{exc}; valid cameras: {', '.join(valid)}") from None
 
     def _get_renderer(self, size: int) -> SceneRenderer:
-        if self._renderer is None or self._renderer.size != size:
-            if self._renderer is not None:
-                self._renderer.close()
-            if self.render_mode == "stock":
-                render_model = self.model
-            else:
-                from seal.sim.fast_assets import build_fast_model
+        # A policy at 64 px and a verifier at 224 take turns every chunk: keep a renderer per
+        # size (a GL buffer each) over one render model rather than rebuilding on every switch.
+        if size not in self._renderers:
+            if self._render_model is None:
+                if self.render_mode == "stock":
+                    self._render_model = self.model
+                else:
+                    from seal.sim.fast_assets import build_fast_model
 
-                render_model = build_fast_model(self._env.model.get_xml())
-                if self._camera_pose is not None:
-                    _set_camera(render_model, AGENT_CAMERA, self._camera_pose)
-            self._renderer = SceneRenderer(render_model, size)
-        return self._renderer
+                    self._render_model = build_fast_model(self._env.model.get_xml())
+                    if self._camera_pose is not None:
+                        _set_camera(self._render_model, AGENT_CAMERA, self._camera_pose)
+            self._renderers[size] = SceneRenderer(self._render_model, size)
+        return self._renderers[size]
 
     # ---- goals --------------------------------------------------------------------------
     def success(self) -> bool:
@@ -407,9 +436,9 @@ class LiberoWorld:
         self._env._post_process()  # LIBERO's derived flags (e.g. the stove's flame)
 
     def close(self) -> None:
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
+        for renderer in self._renderers.values():
+            renderer.close()
+        self._renderers.clear()
         env, self._env = getattr(self, "_env", None), None
         if env is not None:
             env.close()

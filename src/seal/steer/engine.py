@@ -134,7 +134,9 @@ class Steerer:
         self._subplan_index = 0
         self.rng = np.random.default_rng(config.seed)
         self.atoms = policy.privileged_atoms()
-        self.needs_images = self.atoms is None  # a real VLA looks at images; the expert does not
+        # What the policy looks at: nothing (the scripted expert reads state), openpi's 224-px
+        # view (True), or both cameras rendered at the size the policy was trained at.
+        self.policy_images: bool | int = False if self.atoms is not None else (getattr(policy, "image_size", None) or True)
         # A policy without <think> (plain pi0 + a planner): the verifier decides when a sub-plan is done.
         self._check_midway = self.selection.verifies and not policy.thinks
 
@@ -156,8 +158,12 @@ class Steerer:
         background = BackgroundVerifier(self.verifier) if self.verifier is not None else None
         try:
             while committed.steps < max_steps:
-                obs = self._observe(0, images=self.needs_images or self.selection.judge_needs_images(self),
-                                    atoms=self.atoms)
+                judge_images = self.selection.judge_needs_images(self)
+                obs = self._observe(0, images=self.policy_images or judge_images, atoms=self.atoms)
+                first_agent = obs.agent
+                if judge_images and self.policy_images is not True and self.policy_images:
+                    # the policy's small view is not what a VLM judges: its "before" image at 224 too
+                    first_agent = self._observe(0, images=True, atoms=None).agent
                 reasoning = self.policy.reason(obs)
                 if not result.subplans:
                     result.subplans = list(reasoning.plans)
@@ -165,7 +171,8 @@ class Steerer:
                     break
                 self._subplan_index += 1
                 self.emit("subplan", step=committed.steps, text=reasoning.now, reasoning=reasoning.text())
-                sub = Subplan(self._subplan_index, committed, obs, reasoning, max_steps, background, result)
+                sub = Subplan(self._subplan_index, committed, obs, reasoning, max_steps, background, result,
+                              first_agent=first_agent)
                 winner = self.selection.run_subplan(self, sub)
                 if winner is None:  # every candidate hit a simulator error
                     result.sim_error = True
@@ -224,7 +231,7 @@ class Steerer:
                     to_step[i] = np.clip(chunk.actions[:ACTION_HORIZON], -1.0, 1.0)
             if to_step:
                 t0 = time.perf_counter()
-                stepped = pool.step(to_step, observe=True, images=self.needs_images, privileged_atoms=self.atoms,
+                stepped = pool.step(to_step, observe=True, images=self.policy_images, privileged_atoms=self.atoms,
                                     stop_on_success=True)
                 result.timing["predict_s"] += time.perf_counter() - t0
                 for res in stepped:
@@ -285,7 +292,7 @@ class Steerer:
         reasoning = sub.reasoning
         request = VerifyRequest(subplan=reasoning.now, instruction=self.pool.task.instruction, plans=reasoning.plans,
                                 index=reasoning.plans.index(reasoning.now) if reasoning.now in reasoning.plans else None,
-                                first_agent=sub.obs0.agent, task=self.pool.task.key, candidate=c.slot)
+                                first_agent=sub.first_agent, task=self.pool.task.key, candidate=c.slot)
         atoms = self.verifier.atoms_needed(request, self._objects)
         final = self._observe(c.slot, images=self.verifier.needs_images, atoms=atoms)
         request.scene, request.final_agent, request.final_wrist = final.scene, final.agent, final.wrist

@@ -73,6 +73,7 @@ class Subplan:
     background: "BackgroundVerifier | None"
     result: "SteerResult"
     tried: list[Candidate] = field(default_factory=list)
+    first_agent: "np.ndarray | None" = None  # the verifier's "before" agent view (224 px; obs0's own if that is 224)
 
 
 class Selection:
@@ -191,7 +192,7 @@ class ValueSelection(Selection):
             result.timing["sampling_s"] += time.perf_counter() - t0
             t0 = time.perf_counter()
             chunk = np.clip(chunks[best].actions[:ACTION_HORIZON], -1.0, 1.0)
-            res = loop.pool.step({0: chunk}, observe=True, images=loop.needs_images or loop.scorer_needs_images,
+            res = loop.pool.step({0: chunk}, observe=True, images=loop.policy_images or loop.scorer_needs_images,
                                  privileged_atoms=loop.atoms, stop_on_success=True)[0]
             result.timing["predict_s"] += time.perf_counter() - t0
             if not res.ok:
