@@ -40,6 +40,7 @@ from seal.sim.world import LiberoWorld
 ATTEMPTS = "meta/seal_attempts.jsonl"
 STARTS = ("sampled", "official")
 SEED_STRIDE = 1000  # seeds of consecutive episodes lie this far apart (a start may skip a few draws)
+BLOCK = 10  # episodes of one task recorded back to back before the next task's
 
 
 @dataclass
@@ -152,6 +153,10 @@ def record_demos(suite: str, out: Path, *, episodes_per_task: int, tasks: list[i
                 progress(spec, summary, advance=episodes_per_task - len(todo))
             jobs += [_Job(suite, spec.task_id, e, None if starts == "official" else start_seed(spec.key, e),
                           knobs, render_mode, image_size) for e in todo]
+        # Blocks of BLOCK episodes per task, task after task, then the next block: a recording
+        # stopped early (or read while it runs) holds every task about equally, and a worker
+        # rebuilds its world only once per block.
+        jobs.sort(key=lambda j: (j.episode // BLOCK, tasks.index(j.task_id), j.episode))
 
         def finish(job: _Job, attempt: dict, episode: Episode | None) -> None:
             if episode is not None and (attempt["success"] or keep_failures):
