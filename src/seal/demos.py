@@ -24,7 +24,6 @@ from __future__ import annotations
 import json
 import multiprocessing
 import zlib
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -181,21 +180,9 @@ def record_demos(suite: str, out: Path, *, episodes_per_task: int, tasks: list[i
 
 def _run_parallel(jobs: list[_Job], workers: int, finish) -> None:
     # Spawned workers: a forked MuJoCo/EGL context is not safe to reuse. Each worker keeps its
-    # world between jobs; jobs of one task go to the pool together so worlds are rarely rebuilt.
-    ctx = multiprocessing.get_context("spawn")
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
-    pending, queue = set(), list(jobs)
-    interrupted = False
-    try:
-        while queue or pending:
-            while queue and len(pending) < 2 * workers:  # a short queue: Ctrl-C loses little
-                pending.add(pool.submit(_run_job, queue.pop(0)))
-            done, pending = wait(pending, return_when=FIRST_COMPLETED)
-            for fut in done:
-                finish(*fut.result())
-    except BaseException:
-        interrupted = True
-        raise
-    finally:
-        # on Ctrl-C or an error do not wait for episodes in flight: what is written is complete
-        pool.shutdown(wait=not interrupted, cancel_futures=True)
+    # world between jobs, and jobs go out in order (one at a time), so worlds are rarely rebuilt.
+    # Leaving the ``with`` block terminates the workers, also on Ctrl-C or SIGTERM: episodes in
+    # flight are dropped, everything finished is already written.
+    with multiprocessing.get_context("spawn").Pool(workers) as pool:
+        for result in pool.imap_unordered(_run_job, jobs, chunksize=1):
+            finish(*result)
