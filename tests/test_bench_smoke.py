@@ -76,6 +76,21 @@ def test_bench_runtime_names_its_stand_in_verifier(capsys):
         assert r["sampling_ms"] + r["predict_ms"] + r["verify_ms"] <= r["total_ms"] * 1.01
 
 
+def test_bench_runtime_with_a_pixel_policy_splits_render_from_physics(capsys, tmp_path):
+    out = _bench(capsys, "runtime", "--policy", "pixels", "--tasks", "5", "--ks", "1,2", "--trials", "1",
+                 "--max-steps", "20", "--workers", "1", "--plot", str(tmp_path / "fig6.png"))
+    assert out["policy"] == "pixels" and out["render"] == "fast" and out["image_size"] == 64
+    assert [r["k"] for r in out["rows"]] == [1, 2]  # no stand-in-latency rows for pixel policies
+    for r in out["rows"]:
+        _positive(r, "sampling_ms", "render_ms", "predict_ms", "total_ms")
+        assert r["sampling_ms"] + r["render_ms"] + r["predict_ms"] + r["verify_ms"] <= r["total_ms"] * 1.01
+    # the scripted expert alone draws nothing: its rows carry no render time
+    plain = _bench(capsys, "runtime", "--tasks", "5", "--ks", "1", "--trials", "1", "--latency", "0",
+                   "--max-steps", "20")
+    assert plain["rows"][0]["render_ms"] == 0
+    assert (tmp_path / "fig6.png").stat().st_size > 10_000
+
+
 def test_bench_eval(capsys):
     out = _bench(capsys, "eval", "--tasks", "5", "--trials", "1", "--k", "2", "--max-steps", "25")
     assert (out["trials_per_task"], out["trials_run_base"], out["trials_run_seal"]) == (1, 1, 1)

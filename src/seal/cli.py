@@ -466,6 +466,13 @@ def _add_bench(sub) -> None:
     bench.add_argument("--base-url", default=None, help="annotate: model server URL")
     bench.add_argument("--ks", default="", help="runtime: comma-separated K values (default 1,2,4,8,10)")
     bench.add_argument("--latency", type=float, default=2.0, help="runtime: fixed verifier latency in seconds")
+    bench.add_argument("--policy", default=None,
+                       help="runtime: scripted (state only), pixels (the expert reading both cameras every chunk, "
+                            "a VLA's rendering without its network) or vla[:PATH]")
+    bench.add_argument("--image-size", type=int, default=None, help="runtime: camera px for pixel policies (64)")
+    bench.add_argument("--render", default=None, choices=["stock", "fast"],
+                       help="runtime: render model (default: fast for pixel policies)")
+    bench.add_argument("--plot", default=None, help="runtime: write the stacked breakdown against K to this PNG")
     bench.add_argument("--tasks", default="", help="comma-separated task ids (expert: all; steer: 0,1,7; runtime: 5)")
     bench.add_argument("--trials", type=int, default=None,
                        help="expert/steer/runtime: trials (init states) per task (default 50); eval: trials per "

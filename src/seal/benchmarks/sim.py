@@ -41,35 +41,12 @@ def ssim(a: np.ndarray, b: np.ndarray) -> float:
     return round(float(s.mean()), 4)
 
 
-def _consumed(world: LiberoWorld, px: int) -> np.ndarray:
-    """The agent view as a consumer at ``px`` gets it: openpi's 256 -> 224 path at 224, else a
-    render at that size."""
+def _consumed(world: LiberoWorld, px: int, camera: str = AGENT_CAMERA) -> np.ndarray:
+    """A view as a consumer at ``px`` gets it: openpi's 256 -> 224 path at 224, else a render at
+    that size."""
     if px == IMAGE_SIZE:
-        return to_policy_image(world.render_raw((AGENT_CAMERA,))[AGENT_CAMERA])
-    return world.render_raw((AGENT_CAMERA,), size=px)[AGENT_CAMERA]
-
-
-def _keep_textured(world: LiberoWorld, states, px: int) -> dict:
-    """The fast mode with its textured meshes left whole, at ``px``: what texture coordinates
-    sliding under decimation cost in quality, and what keeping them costs in time."""
-    from seal.sim.fast_assets import FastRenderSettings, build_fast_model
-    from seal.sim.render import SceneRenderer
-
-    model = build_fast_model(world._env.model.get_xml(), FastRenderSettings(decimate_textured=False))
-    if world.camera_pose is not None:  # a visual-viewpoint task's moved agent camera
-        model.cam_pos[model.camera(AGENT_CAMERA).id], model.cam_quat[model.camera(AGENT_CAMERA).id] = world.camera_pose
-    renderer = SceneRenderer(model, px)
-    try:
-        draw = lambda: renderer.render(world.model, world.data, AGENT_CAMERA, qpos=world._view.qpos)  # noqa: E731
-        quality = []
-        for s in states:
-            world.restore(s)
-            quality.append(psnr(world.render_raw((AGENT_CAMERA,), size=px)[AGENT_CAMERA], draw()))
-        return {f"render_ms_fast_keep_textured_{px}": _median_ms(draw, 10),
-                f"render_psnr_fast_keep_textured_{px}": round(float(np.median([q or np.inf for q in quality])), 2),
-                f"faces_fast_keep_textured": int(model.mesh_facenum.sum())}
-    finally:
-        renderer.close()
+        return to_policy_image(world.render_raw((camera,))[camera])
+    return world.render_raw((camera,), size=px)[camera]
 
 
 def _vs_package(world: LiberoWorld) -> dict:
@@ -136,19 +113,19 @@ def run(args) -> dict:
     states = _states(world, rng, 3)
     sizes = {}
     for px in RENDER_SIZES:
-        quality = []
-        for s in states:
-            world.restore(s)
-            fast.restore(s)
-            a, b = _consumed(world, px), _consumed(fast, px)
-            quality.append((psnr(a, b), ssim(a, b)))
-        sizes[f"render_ms_stock_{px}"] = _median_ms(lambda: _consumed(world, px), 10)
-        sizes[f"render_ms_fast_{px}"] = _median_ms(lambda: _consumed(fast, px), 10)
-        sizes[f"render_psnr_fast_{px}"] = round(float(np.median([q[0] or np.inf for q in quality])), 2)
-        sizes[f"render_ssim_fast_{px}"] = round(float(np.median([q[1] for q in quality])), 4)
+        for camera, suffix in ((AGENT_CAMERA, ""), (WRIST_CAMERA, "_wrist")):
+            quality = []
+            for s in states:
+                world.restore(s)
+                fast.restore(s)
+                a, b = _consumed(world, px, camera), _consumed(fast, px, camera)
+                quality.append((psnr(a, b), ssim(a, b)))
+            sizes[f"render_ms_stock_{px}{suffix}"] = _median_ms(lambda: _consumed(world, px, camera), 10)
+            sizes[f"render_ms_fast_{px}{suffix}"] = _median_ms(lambda: _consumed(fast, px, camera), 10)
+            sizes[f"render_psnr_fast_{px}{suffix}"] = round(float(np.median([q[0] or np.inf for q in quality])), 2)
+            sizes[f"render_ssim_fast_{px}{suffix}"] = round(float(np.median([q[1] for q in quality])), 4)
     sizes["faces_stock"] = int(world.model.mesh_facenum.sum())
-    sizes["faces_fast"] = int(fast._get_renderer(RENDER_SIZE).model.mesh_facenum.sum())
-    sizes.update(_keep_textured(world, states, 128))
+    sizes["faces_fast"] = int(fast.render_model.mesh_facenum.sum())
     world.restore(states[0])
     fast.restore(states[0])
     render_stock = _median_ms(lambda: world.render_raw((AGENT_CAMERA,)), 10)

@@ -101,3 +101,35 @@ def runtime_vs_k_plot(data: ReportData, runtime: list[RuntimeRow], path: Path) -
     fig.tight_layout()
     fig.savefig(path)
     return path
+
+
+RUNTIME_STAGES = (("sampling_ms", "sampling (policy)"), ("render_ms", "render (both cameras, K worlds)"),
+                  ("predict_ms", "predict (physics, K worlds)"), ("verify_ms", "verify (waiting)"))
+
+
+def runtime_breakdown_plot(rows: list[dict], path, *, title: str = "") -> Path:
+    """Stacked time per executed env step against K, the paper's Fig. 6 layout; the rest of
+    ``total_ms`` (sub-plan starts, bookkeeping) is the top, hatched segment."""
+    path = Path(path)
+    rows = sorted(rows, key=lambda r: r["k"])
+    fig = Figure(figsize=(6.4, 4.0))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    xs = [str(r["k"]) for r in rows]
+    bottom = [0.0] * len(rows)
+    for key, label in RUNTIME_STAGES:
+        vals = [r.get(key, 0.0) for r in rows]
+        ax.bar(xs, vals, bottom=bottom, label=label)
+        bottom = [b + v for b, v in zip(bottom, vals)]
+    rest = [max(r["total_ms"] - b, 0.0) for r, b in zip(rows, bottom)]
+    ax.bar(xs, rest, bottom=bottom, label="other", color="white", edgecolor="grey", hatch="//")
+    for x, r in zip(xs, rows):
+        ax.annotate(f"{r['total_ms']:.0f}", (x, r["total_ms"]), ha="center", va="bottom", fontsize=8)
+    ax.set_xlabel("K (candidates per sub-plan)")
+    ax.set_ylabel("ms per executed env step")
+    ax.set_title(title or "SEAL step time by stage")
+    ax.legend(fontsize=8, loc="upper left")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    return path

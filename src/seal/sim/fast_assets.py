@@ -38,9 +38,6 @@ class FastRenderSettings:
     # ... and 95% of its original vertices within this distance (metres) of the new surface:
     # ~a tenth of what one policy-resolution pixel covers on the table from the agent camera.
     max_deviation: float = 0.001
-    # Decimation slides texture coordinates (labels and wood grain smear); False keeps textured
-    # meshes whole, which `seal bench sim` uses to measure what that costs and gains.
-    decimate_textured: bool = True
 
 
 def cache_dir() -> Path:
@@ -53,8 +50,6 @@ def build_fast_model(scene_xml: str, settings: FastRenderSettings = FastRenderSe
     stock = mujoco.MjModel.from_xml_string(scene_xml)
     root = ET.fromstring(scene_xml)
     drawn = _drawn_mesh_ids(stock)
-    if not settings.decimate_textured:
-        drawn -= _textured_mesh_ids(stock)
     out = cache_dir()
     out.mkdir(parents=True, exist_ok=True)
     for elem in root.iter("mesh"):
@@ -78,16 +73,6 @@ def _drawn_mesh_ids(model: mujoco.MjModel) -> set[int]:
         for g in range(model.ngeom)
         if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH and model.geom_rgba[g][3] > 0
         and model.geom_group[g] in VISIBLE_GEOM_GROUPS
-    }
-
-
-def _textured_mesh_ids(model: mujoco.MjModel) -> set[int]:
-    """Meshes with texture coordinates that some geom draws with a textured material."""
-    return {
-        int(model.geom_dataid[g])
-        for g in range(model.ngeom)
-        if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH and model.geom_matid[g] >= 0
-        and model.mat_texid[model.geom_matid[g]].max() >= 0 and model.mesh_texcoordnum[model.geom_dataid[g]] > 0
     }
 
 

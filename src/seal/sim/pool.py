@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
+import time
 import traceback
 from dataclasses import dataclass
 from multiprocessing.connection import Connection, wait
@@ -38,6 +39,8 @@ class SlotResult:
     sim_error: bool = False  # physics went unstable: the candidate is void
     error: str | None = None  # worker crash or other failure, with the reason
     observation: Observation | None = None
+    physics_s: float = 0.0  # worker time in physics for this command (runtime breakdown)
+    render_s: float = 0.0  # worker time drawing camera images for the observation
 
     @property
     def ok(self) -> bool:
@@ -90,15 +93,19 @@ def _h_step(world, slots, payload):
         world.restore(slots[i])
         start = world.steps
         res = SlotResult(slot=i)
+        t0 = time.perf_counter()
         try:
             res.success = world.step_chunk(actions, stop_on_success=stop_on_success).success
         except SimulationError as exc:
             res.sim_error, res.error = True, str(exc)
+        res.physics_s = time.perf_counter() - t0
         res.steps = world.steps - start
         if not res.sim_error:
             slots[i] = res.snapshot = world.snapshot()
             if observe:
+                drawn = world.render_seconds
                 res.observation = world.observe(images=images, privileged_atoms=atoms)
+                res.render_s = world.render_seconds - drawn
         out.append(res)
     return out
 

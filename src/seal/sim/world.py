@@ -12,6 +12,7 @@ from seal.sim import gl  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
 
 import contextlib
 import io
+import time
 from dataclasses import dataclass
 
 import mujoco
@@ -140,6 +141,7 @@ class LiberoWorld:
         self._fixtures = layout.fixture_bodies(self._env)  # their bodies, read on every snapshot
         self._view = ViewClock(self._env)  # the instant observations show (seal.sim.view)
         self._renderers: dict[int, SceneRenderer] = {}  # one per image size in use (policy, verifier)
+        self.render_seconds = 0.0  # wall time spent drawing camera images (runtime breakdowns)
         self._render_model: mujoco.MjModel | None = None
         self._scene: SceneReader | None = None  # built on first privileged read
         self._steps = 0
@@ -335,26 +337,34 @@ class LiberoWorld:
         """Upright camera images at ``size`` of the instant robosuite's cameras sample
         (``seal.sim.view``); ``to_policy_image`` turns one into openpi's view."""
         renderer = self._get_renderer(size)
+        t0 = time.perf_counter()
         try:
             return renderer.render_many(self.model, self.data, cameras, qpos=self._view.qpos)
         except ValueError as exc:  # mujoco names the bad camera; add what is valid
             valid = [self.model.camera(i).name for i in range(self.model.ncam)]
             raise InvalidInput(f"{exc}; valid cameras: {', '.join(valid)}") from None
+        finally:
+            self.render_seconds += time.perf_counter() - t0
+
+    @property
+    def render_model(self) -> mujoco.MjModel:
+        """The model cameras draw: the physics model itself (stock) or its decimated twin (fast)."""
+        if self._render_model is None:
+            if self.render_mode == "stock":
+                self._render_model = self.model
+            else:
+                from seal.sim.fast_assets import build_fast_model
+
+                self._render_model = build_fast_model(self._env.model.get_xml())
+                if self._camera_pose is not None:
+                    _set_camera(self._render_model, AGENT_CAMERA, self._camera_pose)
+        return self._render_model
 
     def _get_renderer(self, size: int) -> SceneRenderer:
         # A policy at 64 px and a verifier at 224 take turns every chunk: keep a renderer per
         # size (a GL buffer each) over one render model rather than rebuilding on every switch.
         if size not in self._renderers:
-            if self._render_model is None:
-                if self.render_mode == "stock":
-                    self._render_model = self.model
-                else:
-                    from seal.sim.fast_assets import build_fast_model
-
-                    self._render_model = build_fast_model(self._env.model.get_xml())
-                    if self._camera_pose is not None:
-                        _set_camera(self._render_model, AGENT_CAMERA, self._camera_pose)
-            self._renderers[size] = SceneRenderer(self._render_model, size)
+            self._renderers[size] = SceneRenderer(self.render_model, size)
         return self._renderers[size]
 
     # ---- goals --------------------------------------------------------------------------

@@ -102,7 +102,10 @@ class SteerResult:
     verifier_errors: int = 0  # verifications that got no answer (transient errors past their retries)
     verifier_unavailable: bool = False  # in most rounds that asked the verifier, it never answered
     divergence: list[float] = field(default_factory=list)  # replay mode: per commit, max |qpos| gap
-    timing: dict = field(default_factory=lambda: {"sampling_s": 0.0, "predict_s": 0.0, "verify_wait_s": 0.0})
+    # wall time of the loop's stages; predict_s includes the workers' physics and rendering, whose
+    # own (summed) times physics_cpu_s / render_cpu_s say how predict_s splits between the two
+    timing: dict = field(default_factory=lambda: {"sampling_s": 0.0, "predict_s": 0.0, "verify_wait_s": 0.0,
+                                                  "physics_cpu_s": 0.0, "render_cpu_s": 0.0})
     executed_actions: list = field(default_factory=list)
     trace: str = ""
 
@@ -136,7 +139,9 @@ class Steerer:
         self.atoms = policy.privileged_atoms()
         # What the policy looks at: nothing (the scripted expert reads state), openpi's 224-px
         # view (True), or both cameras rendered at the size the policy was trained at.
-        self.policy_images: bool | int = False if self.atoms is not None else (getattr(policy, "image_size", None) or True)
+        # A policy that declares an image size gets its renders even if it also reads state.
+        self.policy_images: bool | int = (getattr(policy, "image_size", None)
+                                          or (False if self.atoms is not None else True))
         # A policy without <think> (plain pi0 + a planner): the verifier decides when a sub-plan is done.
         self._check_midway = self.selection.verifies and not policy.thinks
 
@@ -234,6 +239,7 @@ class Steerer:
                 stepped = pool.step(to_step, observe=True, images=self.policy_images, privileged_atoms=self.atoms,
                                     stop_on_success=True)
                 result.timing["predict_s"] += time.perf_counter() - t0
+                _add_worker_times(result, stepped)
                 for res in stepped:
                     c = cands[res.slot]
                     if not res.ok:
@@ -382,3 +388,8 @@ def _verdict_dict(v: Verdict | None) -> dict | None:
         return None
     return {"success": v.success, "rationale": v.rationale, "latency_s": round(v.latency_s, 4),
             "score": v.score, "cached": bool(v.extra.get("cached", False)), "error": v.extra.get("error")}
+
+
+def _add_worker_times(result: SteerResult, stepped) -> None:
+    result.timing["physics_cpu_s"] += sum(r.physics_s for r in stepped)
+    result.timing["render_cpu_s"] += sum(r.render_s for r in stepped)

@@ -195,6 +195,8 @@ class ValueSelection(Selection):
             res = loop.pool.step({0: chunk}, observe=True, images=loop.policy_images or loop.scorer_needs_images,
                                  privileged_atoms=loop.atoms, stop_on_success=True)[0]
             result.timing["predict_s"] += time.perf_counter() - t0
+            result.timing["physics_cpu_s"] += res.physics_s
+            result.timing["render_cpu_s"] += res.render_s
             if not res.ok:
                 c.error, c.ended_by = res.error or "sim_error", "error"
                 return None
