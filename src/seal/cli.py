@@ -545,13 +545,13 @@ def _add_annotate(sub) -> None:
 def _add_bench(sub) -> None:
     bench = sub.add_parser("bench", help="benchmarks; each prints one JSON object")
     bench.add_argument("what", choices=["sim", "expert", "steer", "runtime", "eval", "serve", "annotate",
-                                                       "value"])
+                                                       "value", "verifier", "verifier-sweep"])
     bench.add_argument("--dataset", default=None, help="annotate/value: LeRobot dataset directory")
     bench.add_argument("--steps", type=int, default=None, help="value: training updates on --dataset (default 300)")
     bench.add_argument("--backend", default="offline", choices=["offline", "gemini", "openai"],
                        help="annotate: annotation backend")
-    bench.add_argument("--model", default=None, help="annotate: model name (gemini/openai)")
-    bench.add_argument("--base-url", default=None, help="annotate: model server URL")
+    bench.add_argument("--model", default=None, help="annotate/verifier: model name (gemini/openai)")
+    bench.add_argument("--base-url", default=None, help="annotate/verifier: model server URL")
     bench.add_argument("--ks", default="", help="runtime: comma-separated K values (default 1,2,4,8,10)")
     bench.add_argument("--latency", type=float, default=2.0, help="runtime: fixed verifier latency in seconds")
     bench.add_argument("--tasks", default="", help="comma-separated task ids (expert: all; steer: 0,1,7; runtime: 5)")
@@ -569,6 +569,23 @@ def _add_bench(sub) -> None:
     bench.add_argument("--task", type=int, default=0)
     bench.add_argument("--k", type=int, default=10)
     bench.add_argument("--workers", type=int, default=None)
+    vb = bench.add_argument_group("verifier / verifier-sweep (docs/verifier.md)")
+    vb.add_argument("--verifier", default="oracle",
+                    help="verifier: oracle | openai | gemini | noisy | learned[:RUN_DIR]; steer: the verifier SEAL uses")
+    vb.add_argument("--data", default=None, help="verifier: `seal verify collect` directory (default: a small "
+                    "fresh held-out set, collected once into runs/verifier/heldout/)")
+    vb.add_argument("--out", default=None, help="verifier: Markdown file; verifier-sweep: results directory "
+                    "(default runs/verifier/sweep)")
+    vb.add_argument("--limit", type=int, default=None, help="verifier: score at most N cases (a fixed shuffle)")
+    vb.add_argument("--false-positive", type=float, default=None, help="verifier noisy: false-positive rate")
+    vb.add_argument("--false-negative", type=float, default=None, help="verifier noisy: false-negative rate")
+    vb.add_argument("--cache-dir", default=None,
+                    help="verifier openai/gemini: answer cache (default ~/.cache/seal/verifier-answers)")
+    vb.add_argument("--fp", default=None, help="verifier-sweep: false-positive rates (default 0,0.1,0.2,0.4)")
+    vb.add_argument("--fn", default=None, help="verifier-sweep: false-negative rates (default 0,0.2,0.4)")
+    vb.add_argument("--points", default=None,
+                    help="verifier-sweep: comma-separated `seal bench verifier` JSON files to draw as measured points")
+    vb.add_argument("--policy", default=None, help="verifier-sweep/steer: policy (default scripted)")
     bench.set_defaults(func=_cmd_bench)
 
 

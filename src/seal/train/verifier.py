@@ -31,6 +31,7 @@ import numpy as np
 
 from seal.errors import InvalidInput
 from seal.verify import dataset as ds
+from seal.verify.dataset import binary_metrics
 from seal.verify.learned import (WordVocab, build_net, context_of, default_config, load_checkpoint, prepare_images,
                                  save_checkpoint)
 
@@ -148,24 +149,6 @@ def split(arrays: CaseArrays, cfg: VerifierTrainConfig) -> dict[str, np.ndarray]
 
 
 # ---- metrics ----------------------------------------------------------------------------------------------
-def binary_metrics(labels, predicted) -> dict:
-    """accuracy, precision, recall, F1 (positive = success), the confusion matrix and the error rates."""
-    y = np.asarray(labels, dtype=bool)
-    p = np.asarray(predicted, dtype=bool)
-    tp, fp = int((y & p).sum()), int((~y & p).sum())
-    fn, tn = int((y & ~p).sum()), int((~y & ~p).sum())
-    n = tp + fp + fn + tn
-
-    def ratio(a, b):
-        return round(a / b, 4) if b else None
-
-    prec, rec = ratio(tp, tp + fp), ratio(tp, tp + fn)
-    f1 = round(2 * prec * rec / (prec + rec), 4) if prec and rec else (0.0 if prec == 0 or rec == 0 else None)
-    return {"n": n, "accuracy": ratio(tp + tn, n), "precision": prec, "recall": rec, "f1": f1,
-            "confusion": {"tp": tp, "fp": fp, "fn": fn, "tn": tn},
-            "fp_rate": ratio(fp, fp + tn), "fn_rate": ratio(fn, fn + tp)}
-
-
 def _predict(net, arrays: CaseArrays, idx: np.ndarray, vocab: WordVocab, max_words: int, batch: int = 256):
     probs = []
     net.eval()
