@@ -267,7 +267,7 @@ def train_verifier(data: Path, out: Path, cfg: VerifierTrainConfig, *, progress=
             loss.backward()
             opt.step()
             step += 1
-            losses.append(float(loss))
+            losses.append(loss.item())
             info = f"loss {np.mean(losses[-20:]):.4f}"
             if step % cfg.log_every == 0 or step == cfg.steps:
                 row = {"step": step, "loss": round(float(np.mean(losses[-cfg.log_every:])), 5),
