@@ -46,11 +46,13 @@ def test_training_learns_text_conditioned_success_and_reports_both_holdouts(run)
         assert summary[part]["accuracy"] >= 0.95 and summary[part]["precision"] >= 0.95, summary[part]
         assert "pick" in summary[part]["per_kind"]
     for name in ("model.safetensors", "config.json", "train_state.pt", "metrics.json", "metrics.jsonl",
-                 "loss_curve.png"):
+                 "loss_curve.png", "manifest.json"):
         assert (out / name).is_file(), name
     rows = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
     assert rows[-1]["step"] == 120 and rows[0]["loss"] > rows[-1]["loss"]
     assert (out / "model.safetensors").stat().st_size < 20e6
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["files"]["model.safetensors"]["bytes"] == (out / "model.safetensors").stat().st_size
 
 
 def test_heldout_splits_share_no_task_or_init_state_with_training(data):

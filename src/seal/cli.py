@@ -115,7 +115,8 @@ def _cmd_verify(args) -> int:
     settings = {k: v for k, v in _method_settings(args).items() if k not in ("k", "rounds", "policy", "knobs")}
     opts = CollectOptions(suite=args.suite, tasks=parse_task_ids(args.suite, args.tasks), per_task=args.per_task,
                           policy=args.policy, knobs=args.knobs, k=args.k or 10, rounds=args.rounds or 2,
-                          balance=args.balance, init_source=args.init_source, inits_per_task=args.inits_per_task,
+                          balance=args.balance, early_exit=args.early_exit, init_source=args.init_source,
+                          inits_per_task=args.inits_per_task,
                           max_episodes=args.max_episodes, max_steps=args.max_steps, workers=args.workers,
                           method_settings=settings)
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
@@ -431,6 +432,9 @@ def _add_verify(sub) -> None:
                      help="scripted expert's failure setting")
     col.add_argument("--per-task", type=int, default=100, help="cases kept per task")
     col.add_argument("--balance", action="store_true", help="keep as many failures as successes per task")
+    col.add_argument("--early-exit", action="store_true",
+                     help="SEAL's early exit: a round's other candidates stop at the first pass and are never "
+                          "judged (default: every candidate of a round runs to its end and becomes a case)")
     col.add_argument("--init-source", default="fresh-train", choices=["fresh-train", "fresh-heldout", "official"],
                      help="init states: fresh ones drawn for training (default), the held-out fresh range, "
                           "or LIBERO's official evaluation ones")

@@ -5,7 +5,11 @@ the steering loop's own candidates are the cases. The loop's verifier is the ora
 ask for images: the loop then renders the three views for every candidate it sends to the
 verifier, and publishes each `VerifyRequest` as a ``verify_request`` event just before judging
 it. `CaseRecorder` listens to that event and labels the request with the oracle; the oracle also
-picks SEAL's winners, so the episode runs as SEAL with a perfect verifier would.
+picks SEAL's winners, so the episode runs as SEAL with a perfect verifier would. By default a
+round runs until all its candidates have ended (`WholeRounds`: no early exit), so every
+candidate becomes a case; with SEAL's early exit (``early_exit=True``) the candidates still
+running at the first pass are stopped and never judged, which leaves few cases per round and
+fewer failures.
 
 Init states: ``official`` uses LIBERO's evaluation starts (init index = episode mod their
 count). ``fresh-train`` and ``fresh-heldout`` draw new ones the way the derived suites drew
@@ -31,10 +35,20 @@ import numpy as np
 
 from seal.errors import InvalidInput
 from seal.verify import dataset as ds
+from seal.steer.selection import SealSelection
 from seal.verify.oracle import OracleVerifier
 
 INIT_SOURCES = ("fresh-train", "fresh-heldout", "official")
 FRESH_SEED_OFFSET = {"fresh-train": 100_000, "fresh-heldout": 200_000}
+
+
+class WholeRounds(SealSelection):
+    """SEAL's selection without the early exit: a round ends when all its candidates have, so every
+    candidate reaches the verifier (as it does when verdicts take longer than the rollouts, the
+    usual case with a VLM). The winner is still the first candidate to pass."""
+
+    def early_winner(self, cands):
+        return super().early_winner(cands) if all(c.ended_by for c in cands) else None
 
 
 class ImagesOracle(OracleVerifier):
@@ -54,6 +68,7 @@ class CollectOptions:
     k: int = 10
     rounds: int = 2
     balance: bool = False  # keep as many failures as successes per task (per_task / 2 each)
+    early_exit: bool = False  # SEAL's early exit: stop a round's other candidates at the first pass
     init_source: str = "fresh-train"
     inits_per_task: int = 20  # fresh sources: init states drawn per task (episodes cycle through them)
     max_episodes: int | None = None  # per task; default 4 * per_task
@@ -64,7 +79,8 @@ class CollectOptions:
     def settings(self) -> dict:
         """What must not change between a collection and its resumption."""
         return {"suite": self.suite, "policy": self.policy, "knobs": self.knobs, "k": self.k, "rounds": self.rounds,
-                "init_source": self.init_source, "balance": self.balance, "max_steps": self.max_steps}
+                "init_source": self.init_source, "balance": self.balance, "max_steps": self.max_steps,
+                "early_exit": self.early_exit}
 
 
 class CaseRecorder:
@@ -257,6 +273,8 @@ def collect(opts: CollectOptions, out: Path, *, progress: Callable | None = None
                 recorder = CaseRecorder(base)
                 with build_episode(spec, run_task, seed=seed, pool=pool, max_steps=opts.max_steps,
                                    verifier=ImagesOracle(), subscribers=(recorder,)) as ep:
+                    if not opts.early_exit:
+                        ep.steerer.selection = WholeRounds()
                     ep.run(init_index)
                 kept = _keep(recorder.rows, have, opts)
                 ds.write_shard(out, ds.shard_name(task.suite, task.task_id, episode), kept)

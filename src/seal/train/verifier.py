@@ -287,7 +287,29 @@ def train_verifier(data: Path, out: Path, cfg: VerifierTrainConfig, *, progress=
     result = summary(final=True)
     (out / "metrics.json").write_text(json.dumps(result, indent=1))
     plot_loss(out)
+    write_manifest(out, result)
     return result
+
+
+def write_manifest(out: Path, result: dict) -> Path:
+    """``manifest.json``: what a shipped checkpoint is (files with sha256 and size, the data it
+    was trained on, its held-out figures). Shipping = copying model.safetensors, config.json and
+    manifest.json into ``seal/verify/checkpoints/learned/``."""
+    files = {}
+    for name in ("model.safetensors", "config.json"):
+        data = (out / name).read_bytes()
+        files[name] = {"sha256": hashlib.sha256(data).hexdigest(), "bytes": len(data)}
+
+    def headline(m):
+        return None if not m else {k: m[k] for k in ("n", "accuracy", "precision", "recall", "f1")}
+
+    manifest = {"model": "seal-learned-verifier", "files": files, "step": result["step"], "data": result["data"],
+                "data_fingerprint": result["data_fingerprint"], "split": result["split"],
+                "holdout_tasks": result["holdout_tasks"], "heldout_inits": headline(result["heldout_inits"]),
+                "heldout_tasks": headline(result["heldout_tasks"]),
+                "command": "seal train verifier (see docs/verifier.md)"}
+    (out / "manifest.json").write_text(json.dumps(manifest, indent=1))
+    return out / "manifest.json"
 
 
 def plot_loss(out: Path) -> Path | None:
