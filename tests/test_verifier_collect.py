@@ -4,6 +4,7 @@ task 5 (the book, two sub-plans), K=2, short episodes."""
 from __future__ import annotations
 
 import json
+from collections import Counter
 
 import numpy as np
 import pytest
@@ -45,6 +46,8 @@ def test_collect_keeps_what_the_verifier_saw_with_the_oracle_label_and_resumes(t
         first_view, final_view, wrist = (ds.decode_png(r[c]) for c in ds.IMAGE_COLUMNS)
         assert first_view.shape == final_view.shape == wrist.shape == (224, 224, 3)
         assert not np.array_equal(first_view, final_view)  # the arm moved between the two front views
+    rounds = Counter((r["episode"], r["subplan_number"], r["round"]) for r in rows)
+    assert max(rounds.values()) == 2  # whole rounds: both candidates of a round were judged
     info = json.loads((out / "info.json").read_text())
     assert info["collection"]["counts"]["libero_10/5"]["success"] + info["collection"]["counts"]["libero_10/5"][
         "failure"] == 3

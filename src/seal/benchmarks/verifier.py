@@ -1,7 +1,7 @@
 """`seal bench verifier`: a verifier against simulator truth on verification cases.
 
 Cases come from ``--data`` (a `seal verify collect` directory) or, without it, from a small
-held-out set collected on the spot into ``runs/verifier/heldout/<suite>-<tasks>`` (reused when
+held-out set collected on the spot into ``runs/verifier/heldout/<suite>-<tasks>-k<K>`` (reused when
 it is already there): init states drawn fresh from the ``fresh-heldout`` seed range, which no
 training collection (``fresh-train``) and no shipped init state uses (`seal.collect`).
 
@@ -53,7 +53,7 @@ def heldout_set(args) -> Path:
     from seal.sim.suites import parse_task_ids
 
     tasks = parse_task_ids(args.suite, args.tasks or "0,1,7")
-    out = HELDOUT_DIR / f"{args.suite}-{'_'.join(map(str, tasks))}"
+    out = HELDOUT_DIR / f"{args.suite}-{'_'.join(map(str, tasks))}-k{args.k}"
     opts = CollectOptions(suite=args.suite, tasks=tasks, per_task=HELDOUT_PER_TASK, k=args.k, balance=True,
                           init_source="fresh-heldout", inits_per_task=10, max_steps=getattr(args, "max_steps", None))
     collect(opts, out)
