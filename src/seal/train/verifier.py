@@ -107,13 +107,17 @@ def load_arrays(data: Path, size: int, cache_dir: Path | None = None, progress=N
         with np.load(cache) as f:
             first, final, wrist = f["first"], f["final"], f["wrist"]
     else:
-        views = []
-        table = ds.read_cases(data, columns=list(ds.IMAGE_COLUMNS))
-        for i, col in enumerate(ds.IMAGE_COLUMNS):
-            views.append(_downsample(table.column(col).to_pylist(), size))
+        import pyarrow.parquet as pq
+
+        views: list[list[np.ndarray]] = [[], [], []]
+        paths = ds.shard_paths(data)
+        for i, path in enumerate(paths):  # one shard's images in memory at a time
+            table = pq.read_table(path, columns=list(ds.IMAGE_COLUMNS))
+            for view, col in zip(views, ds.IMAGE_COLUMNS):
+                view.append(_downsample(table.column(col).to_pylist(), size))
             if progress:
-                progress("images", i + 1, 3)
-        first, final, wrist = views
+                progress("images", i + 1, len(paths))
+        first, final, wrist = (np.concatenate(v) for v in views)
         if cache is not None:
             cache.parent.mkdir(parents=True, exist_ok=True)
             tmp = cache.with_name("." + cache.name)

@@ -221,15 +221,26 @@ class Case:
 
 
 def iter_cases(root: Path, *, limit: int | None = None, seed: int = 0):
-    """Cases in a fixed shuffled order (so ``limit`` takes a mix of tasks and kinds), decoded."""
-    table = read_cases(root)
-    order = np.random.default_rng(seed).permutation(table.num_rows)
+    """Cases, decoded; with ``limit``, that many chosen by a fixed shuffle (a mix of tasks and
+    kinds). Shards are read one at a time, so memory holds one shard's images, not all."""
+    import pyarrow.parquet as pq
+
+    read_info(root)
+    paths = shard_paths(root)
+    sizes = [pq.ParquetFile(p).metadata.num_rows for p in paths]
+    chosen = np.random.default_rng(seed).permutation(sum(sizes))
     if limit is not None:
-        order = order[:limit]
-    for i in order:
-        row = table.slice(int(i), 1).to_pylist()[0]
-        images = tuple(decode_png(row.pop(c)) for c in IMAGE_COLUMNS)
-        yield Case(row, images)
+        chosen = chosen[:limit]
+    chosen = np.sort(chosen)
+    start = 0
+    for path, size in zip(paths, sizes):
+        rows = chosen[(chosen >= start) & (chosen < start + size)] - start
+        start += size
+        if len(rows) == 0:
+            continue
+        table = pq.read_table(path).take(rows)
+        for row in table.to_pylist():
+            yield Case(row, tuple(decode_png(row.pop(c)) for c in IMAGE_COLUMNS))
 
 
 def to_request(case: Case) -> VerifyRequest:
