@@ -140,7 +140,11 @@ def load_points(text: str | None) -> list[dict]:
             raise InvalidInput(f"--points: cannot read {path} as a `seal bench verifier` JSON: {exc}") from None
         if result.get("fp_rate") is None or result.get("fn_rate") is None:
             raise InvalidInput(f"--points: {path} has no fp_rate / fn_rate (not a `seal bench verifier` output?)")
-        points.append({"label": str(result.get("verifier", path.stem)), "fp_rate": result["fp_rate"],
+        label = str(result.get("verifier", path.stem))
+        if ":" in label and "/" in label:  # learned:/long/path/RUN -> learned:RUN
+            kind, _, where = label.partition(":")
+            label = f"{kind}:{Path(where).name}"
+        points.append({"label": label, "fp_rate": result["fp_rate"],
                        "fn_rate": result["fn_rate"], "cases": result.get("cases")})
     return points
 
@@ -184,13 +188,18 @@ def draw(table: dict, fps, fns, points, path: Path) -> Path:
             s = table["cells"][cell_name(fp, fn)]["success"]
             grid[i, j] = np.nan if s is None else s
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
-    mesh = ax.pcolormesh(_edges(fps_s), _edges(fns_s), grid, cmap="viridis", vmin=0, vmax=1)
-    for i, fn in enumerate(fns_s):
-        for j, fp in enumerate(fps_s):
+    # Cells span the midpoints between grid values, clipped to [0, 1]: a measured verifier sits in
+    # the cell of the nearest grid point.
+    xe, ye = np.clip(_edges(fps_s), 0, 1), np.clip(_edges(fns_s), 0, 1)
+    mesh = ax.pcolormesh(xe, ye, grid, cmap="viridis", vmin=0, vmax=1)
+    for i in range(len(fns_s)):
+        for j in range(len(fps_s)):
             if not np.isnan(grid[i, j]):
-                ax.text(fp, fn, f"{grid[i, j]:.2f}", ha="center", va="center", color="white", fontsize=9)
+                ax.text((xe[j] + xe[j + 1]) / 2, (ye[i] + ye[i + 1]) / 2, f"{grid[i, j]:.2f}", ha="center",
+                        va="center", color="black" if grid[i, j] > 0.6 else "white", fontsize=9)
     for p in points:
-        ax.plot(p["fp_rate"], p["fn_rate"], marker="*", markersize=14, color="red", markeredgecolor="black")
+        ax.plot(p["fp_rate"], p["fn_rate"], marker="*", markersize=14, color="red", markeredgecolor="black",
+                clip_on=False, zorder=5)
         ax.annotate(p["label"], (p["fp_rate"], p["fn_rate"]), textcoords="offset points", xytext=(6, 6),
                     fontsize=8, color="red")
     ax.set_xlabel("false-positive rate")

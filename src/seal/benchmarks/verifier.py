@@ -8,8 +8,8 @@ training collection (``fresh-train``) and no shipped init state uses (`seal.coll
 Every verifier gets exactly the `VerifyRequest` it would get in a SEAL round (for the oracle
 and ``noisy``, the end state carries the recorded truth of the grounded atoms). Requests go in
 batches of ``--k`` (10): a verifier with ``verify_batch`` (``learned``) judges a batch in one
-call, the others get the batch's requests concurrently. ``ms_per_verdict`` is the wall time of
-the batches over the number of cases.
+call (after one untimed warm-up batch), the others get the batch's requests concurrently.
+``ms_per_verdict`` is the wall time of the batches over the number of cases.
 
 Positive = success. An unknown verdict counts as a predicted failure (SEAL never commits on
 it) and is also counted apart. VLM answers are cached on disk (``--cache-dir``, keyed by
@@ -63,6 +63,8 @@ def heldout_set(args) -> Path:
 async def _judge_all(verifier, requests, k: int):
     verdicts, wall = [], 0.0
     batched = hasattr(verifier, "verify_batch")
+    if batched and requests:  # one untimed batch first: the first forward pass pays one-off setup
+        verifier.verify_batch(requests[:k])
     for start in range(0, len(requests), k):
         batch = requests[start:start + k]
         t0 = time.perf_counter()
