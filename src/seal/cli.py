@@ -77,14 +77,18 @@ def _cmd_demos(args) -> int:
 
 
 def _cmd_train(args) -> int:
+    if args.what == "verifier":
+        return _cmd_train_verifier(args)
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     from seal.train.pipeline import train_value_on_dataset
     from seal.train.vgps import IQLConfig
 
-    cfg = IQLConfig(steps=args.steps, batch_size=args.batch_size, lr=args.lr, gamma=args.gamma,
-                    expectile=args.expectile, seed=args.seed)
+    if not args.dataset:
+        raise InvalidInput("seal train value needs --dataset (a LeRobot dataset)")
+    cfg = IQLConfig(steps=args.steps or 3000, batch_size=args.batch_size or 128, lr=args.lr or 3e-4,
+                    gamma=args.gamma, expectile=args.expectile, seed=args.seed)
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TextColumn("{task.fields[info]}"), TimeRemainingColumn(), console=Console(stderr=True)) as bar:
         jobs: dict = {}
@@ -99,6 +103,60 @@ def _cmd_train(args) -> int:
         summary = train_value_on_dataset(Path(args.dataset), Path(args.out), goals=args.goals,
                                          holdout=args.holdout, cfg=cfg, progress=progress)
     print(json.dumps({k: summary[k] for k in ("train_transitions", "last", "heldout", "train_fit") if k in summary}))
+    return 0
+
+
+def _cmd_verify(args) -> int:
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from seal.collect import CollectOptions, collect
+    from seal.sim.suites import parse_task_ids
+
+    settings = {k: v for k, v in _method_settings(args).items() if k not in ("k", "rounds", "policy", "knobs")}
+    opts = CollectOptions(suite=args.suite, tasks=parse_task_ids(args.suite, args.tasks), per_task=args.per_task,
+                          policy=args.policy, knobs=args.knobs, k=args.k or 10, rounds=args.rounds or 2,
+                          balance=args.balance, early_exit=args.early_exit, init_source=args.init_source,
+                          inits_per_task=args.inits_per_task,
+                          max_episodes=args.max_episodes, max_steps=args.max_steps, workers=args.workers,
+                          method_settings=settings)
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  console=Console(stderr=True)) as bar:
+        job = bar.add_task("verification cases", total=len(opts.tasks) * opts.per_task)
+
+        def progress(text, kept, total):
+            bar.update(job, completed=total, description=text)
+
+        summary = collect(opts, Path(args.out), progress=progress)
+    print(json.dumps(summary))
+    return 0
+
+
+def _cmd_train_verifier(args) -> int:
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from seal.train.verifier import VerifierTrainConfig, train_verifier
+
+    if not args.data:
+        raise InvalidInput("seal train verifier needs --data (a `seal verify collect` directory)")
+    holdout = tuple(t.strip() for t in (args.holdout_tasks or "").split(",") if t.strip())
+    cfg = VerifierTrainConfig(steps=args.steps or 2000, batch_size=args.batch_size or 64, lr=args.lr or 1e-3,
+                              image_size=args.image_size, holdout_tasks=holdout, holdout_inits=args.holdout_inits,
+                              seed=args.seed, save_every_s=args.save_every_min * 60.0)
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                  TextColumn("{task.fields[info]}"), TimeRemainingColumn(), console=Console(stderr=True)) as bar:
+        jobs: dict = {}
+
+        def progress(stage, done, total, info):
+            if stage not in jobs:
+                jobs[stage] = bar.add_task("decoding images" if stage == "load" else "training", total=total, info="")
+            bar.update(jobs[stage], completed=done, total=total, info=info)
+
+        summary = train_verifier(Path(args.data), Path(args.out), cfg, progress=progress, threads=args.threads or 1)
+    keys = ("step", "split", "heldout_inits", "heldout_tasks")
+    print(json.dumps({k: ({m: v for m, v in summary[k].items() if m != "per_kind"} if isinstance(summary[k], dict)
+                          and "per_kind" in summary[k] else summary[k]) for k in keys}))
     return 0
 
 
@@ -258,8 +316,8 @@ _METHOD_OPTIONS = (
     ("--mismatch", _mismatch, "prediction physics scales 'friction,mass,damping', e.g. 1.3,0.8,1.2"),
     ("--render", str, "render model: stock (default) | fast"),
     ("--check-every", int, "policies without <think>: steps between mid-rollout verifier checks (default 20)"),
-    ("--verifier", str, "oracle (default) | openai | gemini | noisy"),
-    ("--model", str, "VLM model name (openai/gemini verifiers)"),
+    ("--verifier", str, "oracle (default) | openai | gemini | noisy | learned[:RUN_DIR]"),
+    ("--model", str, "VLM model name (openai/gemini verifiers); learned: checkpoint directory"),
     ("--base-url", str, "OpenAI-compatible server URL for VLM verifier/planner (default: OPENAI_BASE_URL)"),
     ("--false-positive", float, "noisy verifier: false-positive rate"),
     ("--false-negative", float, "noisy verifier: false-negative rate"),
@@ -344,20 +402,64 @@ def _add_demos(sub) -> None:
 
 
 def _add_train(sub) -> None:
-    train = sub.add_parser("train", help="learned models; `value`: the V-GPS baseline's IQL Q-function")
-    train.add_argument("what", choices=["value"])
-    train.add_argument("--dataset", required=True, help="LeRobot dataset (e.g. from `seal demos record --keep-failures`)")
-    train.add_argument("--out", required=True, help="run directory: checkpoint.pt, metrics.jsonl, summary.json")
+    train = sub.add_parser("train", help="learned models; `value`: the V-GPS baseline's IQL Q-function; "
+                           "`verifier`: the learned verifier (docs/verifier.md)")
+    train.add_argument("what", choices=["value", "verifier"])
+    train.add_argument("--dataset", default=None,
+                       help="value: LeRobot dataset (e.g. from `seal demos record --keep-failures`)")
+    train.add_argument("--data", default=None, help="verifier: `seal verify collect` directory")
+    train.add_argument("--out", required=True, help="run directory (value: checkpoint.pt, metrics.jsonl, "
+                       "summary.json; verifier: model.safetensors, config.json, train_state.pt, metrics)")
+    train.add_argument("--holdout-tasks", default="",
+                       help="verifier: comma-separated task keys (libero_10/1,...) never trained on")
+    train.add_argument("--holdout-inits", type=float, default=0.2,
+                       help="verifier: fraction of each other task's init states held out")
+    train.add_argument("--image-size", type=int, default=96, help="verifier: model input size in pixels")
+    train.add_argument("--save-every-min", type=float, default=5.0, help="verifier: minutes between checkpoints")
+    train.add_argument("--threads", type=int, default=None, help="verifier: torch threads (default 1)")
     train.add_argument("--goals", default="both", choices=["task", "subplan", "both"],
                        help="goal texts to condition on: the task instruction, each sub-plan, or both")
-    train.add_argument("--steps", type=int, default=3000, help="gradient updates (re-running continues to this)")
-    train.add_argument("--batch-size", type=int, default=128)
-    train.add_argument("--lr", type=float, default=3e-4)
+    train.add_argument("--steps", type=int, default=None,
+                       help="gradient updates, re-running continues to this (value 3000, verifier 2000)")
+    train.add_argument("--batch-size", type=int, default=None, help="value 128, verifier 64")
+    train.add_argument("--lr", type=float, default=None, help="value 3e-4, verifier 1e-3")
     train.add_argument("--gamma", type=float, default=0.9, help="discount per 5-step chunk")
     train.add_argument("--expectile", type=float, default=0.7, help="IQL's tau")
     train.add_argument("--holdout", type=float, default=0.2, help="fraction of episodes held out for the check")
     train.add_argument("--seed", type=int, default=0)
     train.set_defaults(func=_cmd_train)
+
+
+def _add_verify(sub) -> None:
+    verify = sub.add_parser("verify", help="verifier data: `collect` verification cases from SEAL rounds")
+    verify_sub = verify.add_subparsers(dest="verify_command", required=True)
+    col = verify_sub.add_parser("collect", help="every candidate SEAL sends to the verifier, with its three views "
+                                "and the oracle's label, as parquet (resumable; docs/verifier.md)")
+    col.add_argument("--suite", default="libero_10")
+    col.add_argument("--tasks", default="0", help="comma-separated task ids")
+    col.add_argument("--policy", default="scripted", help="who proposes candidates: scripted | vla | remote | ...")
+    col.add_argument("--knobs", default="misaligned", choices=["clean", "misaligned"],
+                     help="scripted expert's failure setting")
+    col.add_argument("--per-task", type=int, default=100, help="cases kept per task")
+    col.add_argument("--balance", action="store_true", help="keep as many failures as successes per task")
+    col.add_argument("--early-exit", action="store_true",
+                     help="SEAL's early exit: a round's other candidates stop at the first pass and are never "
+                          "judged (default: every candidate of a round runs to its end and becomes a case)")
+    col.add_argument("--init-source", default="fresh-train", choices=["fresh-train", "fresh-heldout", "official"],
+                     help="init states: fresh ones drawn for training (default), the held-out fresh range, "
+                          "or LIBERO's official evaluation ones")
+    col.add_argument("--inits-per-task", type=int, default=20, help="fresh init states drawn per task")
+    col.add_argument("--max-episodes", type=int, default=None, help="per task (default 4 x --per-task)")
+    col.add_argument("--max-steps", type=int, default=None, help="per episode (default: the suite's limit)")
+    col.add_argument("--workers", type=int, default=None, help="simulator processes (default: min(K, cores))")
+    col.add_argument("--out", required=True, help="collection directory (re-run with the same one to continue)")
+    group = col.add_argument_group("method options (seal.steer.method.MethodSpec)")
+    for flag, kind, help_text in _METHOD_OPTIONS:
+        if flag not in ("--policy", "--knobs", "--verifier", "--model", "--false-positive", "--false-negative",
+                        "--value-ckpt", "--value-goal"):
+            group.add_argument(flag, type=kind, default=None, help=help_text)
+    col.set_defaults(func=_cmd_verify, verifier=None, model=None, false_positive=None, false_negative=None,
+                     value_ckpt=None, value_goal=None)
 
 
 def _add_suites(sub) -> None:
@@ -457,13 +559,13 @@ def _add_annotate(sub) -> None:
 def _add_bench(sub) -> None:
     bench = sub.add_parser("bench", help="benchmarks; each prints one JSON object")
     bench.add_argument("what", choices=["sim", "expert", "steer", "runtime", "eval", "serve", "annotate",
-                                                       "value"])
+                                                       "value", "verifier", "verifier-sweep"])
     bench.add_argument("--dataset", default=None, help="annotate/value: LeRobot dataset directory")
     bench.add_argument("--steps", type=int, default=None, help="value: training updates on --dataset (default 300)")
     bench.add_argument("--backend", default="offline", choices=["offline", "gemini", "openai"],
                        help="annotate: annotation backend")
-    bench.add_argument("--model", default=None, help="annotate: model name (gemini/openai)")
-    bench.add_argument("--base-url", default=None, help="annotate: model server URL")
+    bench.add_argument("--model", default=None, help="annotate/verifier: model name (gemini/openai)")
+    bench.add_argument("--base-url", default=None, help="annotate/verifier: model server URL")
     bench.add_argument("--ks", default="", help="runtime: comma-separated K values (default 1,2,4,8,10)")
     bench.add_argument("--latency", type=float, default=2.0, help="runtime: fixed verifier latency in seconds")
     bench.add_argument("--policy", default=None,
@@ -488,14 +590,31 @@ def _add_bench(sub) -> None:
     bench.add_argument("--task", type=int, default=0)
     bench.add_argument("--k", type=int, default=10)
     bench.add_argument("--workers", type=int, default=None)
+    vb = bench.add_argument_group("verifier / verifier-sweep (docs/verifier.md)")
+    vb.add_argument("--verifier", default="oracle",
+                    help="verifier: oracle | openai | gemini | noisy | learned[:RUN_DIR]; steer: the verifier SEAL uses")
+    vb.add_argument("--data", default=None, help="verifier: `seal verify collect` directory (default: a small "
+                    "fresh held-out set, collected once into runs/verifier/heldout/)")
+    vb.add_argument("--out", default=None, help="verifier: Markdown file; verifier-sweep: results directory "
+                    "(default runs/verifier/sweep)")
+    vb.add_argument("--limit", type=int, default=None, help="verifier: score at most N cases (a fixed shuffle)")
+    vb.add_argument("--false-positive", type=float, default=None, help="verifier noisy: false-positive rate")
+    vb.add_argument("--false-negative", type=float, default=None, help="verifier noisy: false-negative rate")
+    vb.add_argument("--cache-dir", default=None,
+                    help="verifier openai/gemini: answer cache (default ~/.cache/seal/verifier-answers)")
+    vb.add_argument("--fp", default=None, help="verifier-sweep: false-positive rates (default 0,0.1,0.2,0.4)")
+    vb.add_argument("--fn", default=None, help="verifier-sweep: false-negative rates (default 0,0.2,0.4)")
+    vb.add_argument("--points", default=None,
+                    help="verifier-sweep: comma-separated `seal bench verifier` JSON files to draw as measured points")
+    vb.add_argument("--policy", default=None, help="verifier-sweep/steer: policy (default scripted)")
     bench.set_defaults(func=_cmd_bench)
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="seal", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
-    for add in (_add_run, _add_ground, _add_demos, _add_train, _add_suites, _add_eval, _add_report, _add_serve,
-                _add_annotate, _add_bench):
+    for add in (_add_run, _add_ground, _add_demos, _add_train, _add_verify, _add_suites, _add_eval, _add_report,
+                _add_serve, _add_annotate, _add_bench):
         add(sub)
     return p
 

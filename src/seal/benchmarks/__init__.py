@@ -13,12 +13,14 @@ BENCHMARKS = {"sim": "seal.benchmarks.sim:run", "expert": "seal.benchmarks.exper
               "eval": "seal.benchmarks.eval:run",
               "serve": "seal.benchmarks.serve:run",
               "annotate": "seal.benchmarks.annotate:run",
-              "value": "seal.benchmarks.value:run"}
+              "value": "seal.benchmarks.value:run",
+              "verifier": "seal.benchmarks.verifier:run",
+              "verifier-sweep": "seal.benchmarks.sweep:run"}
 
 
 # `--trials` when not given, per benchmark (what it counts differs: init states per task, trials of
 # the eval harness, round trips of `serve`). A value given is always honoured, never replaced.
-DEFAULT_TRIALS = {"expert": 50, "steer": 50, "runtime": 50, "eval": 3, "serve": 50}
+DEFAULT_TRIALS = {"expert": 50, "steer": 50, "runtime": 50, "eval": 3, "serve": 50, "verifier-sweep": 10}
 
 
 def trials_of(args, name: str) -> int:

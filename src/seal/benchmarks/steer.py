@@ -39,21 +39,32 @@ def _tasks(args, default: str) -> list[int]:
 
 
 def run_steer(args) -> dict:
+    from seal.verify import verifier_for
+
     trials = trials_of(args, "steer")
     per_task = {}
-    methods = {m: MethodSpec(method=m, k=args.k, knobs="misaligned", verifier="oracle") for m in ("base", "seal")}
+    verifier_name = getattr(args, "verifier", None) or "oracle"
+    extra = {"policy": args.policy} if getattr(args, "policy", None) else {}
+    if getattr(args, "model", None) and ":" not in verifier_name:
+        extra["model"] = args.model
+    methods = {m: MethodSpec(method=m, k=args.k, knobs="misaligned", verifier=verifier_name, **extra)
+               for m in ("base", "seal")}
+    # One verifier for every episode (a learned one loads its checkpoint once); episodes borrow it.
+    verifier = verifier_for(methods["seal"])
     for t in _tasks(args, "0,1,7"):
         spec = get_task(args.suite, t)
         wins = {"base": 0, "seal": 0}
         with EnvPool(spec, k=args.k, workers=args.workers) as pool:
             for trial in range(trials):
                 for name, method in methods.items():
-                    with build_episode(method, spec, seed=trial, pool=pool, max_steps=_max_steps(args)) as episode:
+                    with build_episode(method, spec, seed=trial, pool=pool, max_steps=_max_steps(args),
+                                       verifier=verifier if name == "seal" else None) as episode:
                         wins[name] += episode.run(trial % pool.task.init_states().shape[0]).success
         per_task[str(t)] = {m: round(w / trials, 3) for m, w in wins.items()}
     base = float(np.mean([v["base"] for v in per_task.values()]))
     seal = float(np.mean([v["seal"] for v in per_task.values()]))
-    return {"suite": args.suite, "trials": trials, "k": args.k, "knobs": "misaligned", "verifier": "oracle",
+    return {"suite": args.suite, "trials": trials, "k": args.k, "knobs": "misaligned", "verifier": verifier.name,
+            "policy": methods["seal"].policy,
             "max_steps": _max_steps(args),
             "base_mean_success": round(base, 3), "seal_mean_success": round(seal, 3), "lift": round(seal - base, 3),
             "per_task": per_task}

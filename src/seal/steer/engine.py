@@ -26,8 +26,8 @@ Methods share this loop and differ only in their candidate selection (`seal.stee
 text) and the best one is executed; the goal text is the task or the sub-plan), ``seal``
 (verified, early exit). The loop never asks which method it runs.
 
-What happens is published as events (``subplan``, ``candidate``, ``round_end``, ``commit``,
-``episode_end``) to subscribers (`seal.steer.events`): the trace, the candidate grids and
+What happens is published as events (``subplan``, ``verify_request``, ``candidate``, ``round_end``,
+``commit``, ``episode_end``) to subscribers (`seal.steer.events`): the trace, the candidate grids and
 progress displays listen; the loop writes no file itself.
 """
 
@@ -302,6 +302,9 @@ class Steerer:
         atoms = self.verifier.atoms_needed(request, self._objects)
         final = self._observe(c.slot, images=self.verifier.needs_images, atoms=atoms)
         request.scene, request.final_agent, request.final_wrist = final.scene, final.agent, final.wrist
+        # What the verifier is about to judge, as it will see it (verification-case collectors listen).
+        self.emit("verify_request", request=request, subplan=sub.index, round=c.round, slot=c.slot, steps=c.steps,
+                  ended_by=c.ended_by or "midway")
         return request
 
     def _take_checks(self, cands: list[Candidate], active: list[int]) -> None:

@@ -44,7 +44,7 @@ class MethodSpec:
     k: int = 10
     rounds: int = 2  # sampling rounds per sub-plan before the fallback picks a candidate
     verifier: str = "oracle"  # seal only
-    model: str | None = None  # VLM verifiers only
+    model: str | None = None  # VLM verifiers: the model name; learned: its checkpoint directory
     false_positive: float = 0.0  # any verifier wrapped in the noisy one (seal only)
     false_negative: float = 0.0
     policy: str = "scripted"
@@ -70,8 +70,12 @@ class MethodSpec:
 
     def __post_init__(self) -> None:
         from seal.policies import POLICIES
-        from seal.verify import VERIFIERS
+        from seal.verify import VERIFIERS, split_name
 
+        if ":" in self.verifier:  # learned:RUN_DIR names the checkpoint in the verifier's name
+            name, path = split_name(self.verifier, self.model)
+            object.__setattr__(self, "verifier", name)
+            object.__setattr__(self, "model", path)
         _one_of("method", self.method, METHODS)
         _one_of("verifier", self.verifier, VERIFIERS)
         _one_of("policy", self.policy, POLICIES)
@@ -138,6 +142,10 @@ class MethodSpec:
         if self.method != "seal":
             for name in ("verifier", "model", "false_positive", "false_negative", "rounds", "check_every"):
                 d.pop(name, None)
+        elif self.verifier == "learned":  # the weights, not the path, decide the verdicts
+            from seal.verify.learned import checkpoint_digest as learned_digest
+
+            d["model"] = learned_digest(self.model)
         if self.method == "base":
             d.pop("k")
         if self.method != "value":

@@ -218,6 +218,10 @@ class OracleVerifier:
         return [str(a) for a in ground(request.subplan, request.plans, objects, request.index).atoms]
 
     async def verify(self, request: VerifyRequest) -> Verdict:
+        return self.judge(request)
+
+    def judge(self, request: VerifyRequest) -> Verdict:
+        """The verdict, computed right away (``verify`` without the event loop)."""
         start = time.perf_counter()
         scene = request.scene
         if scene is None:

@@ -1,0 +1,146 @@
+"""`seal bench verifier`: a verifier against simulator truth on verification cases.
+
+Cases come from ``--data`` (a `seal verify collect` directory) or, without it, from a small
+held-out set collected on the spot into ``runs/verifier/heldout/<suite>-<tasks>-k<K>`` (reused when
+it is already there): init states drawn fresh from the ``fresh-heldout`` seed range, which no
+training collection (``fresh-train``) and no shipped init state uses (`seal.collect`).
+
+Every verifier gets exactly the `VerifyRequest` it would get in a SEAL round (for the oracle
+and ``noisy``, the end state carries the recorded truth of the grounded atoms). Requests go in
+batches of ``--k`` (10): a verifier with ``verify_batch`` (``learned``) judges a batch in one
+call (after one untimed warm-up batch), the others get the batch's requests concurrently.
+``ms_per_verdict`` is the wall time of the batches over the number of cases.
+
+Positive = success. An unknown verdict counts as a predicted failure (SEAL never commits on
+it) and is also counted apart. VLM answers are cached on disk (``--cache-dir``, keyed by
+backend, model, settings, prompt and the images' pixels), so a re-run pays nothing:
+``cost_usd`` is what this run spent, ``cost_usd_uncached`` what the answers cost when first paid.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from pathlib import Path
+
+from seal.errors import InvalidInput
+from seal.verify import dataset as ds
+from seal.verify.dataset import binary_metrics
+
+DEFAULT_CACHE = Path.home() / ".cache" / "seal" / "verifier-answers"
+HELDOUT_DIR = Path("runs") / "verifier" / "heldout"
+HELDOUT_PER_TASK = 20
+
+
+def _build(args):
+    from seal.verify import make_verifier, split_name
+
+    name, model = split_name(args.verifier, getattr(args, "model", None))
+    opts: dict = {}
+    if name in ("openai", "gemini"):
+        opts["cache_dir"] = Path(args.cache_dir) if getattr(args, "cache_dir", None) else DEFAULT_CACHE
+    fp = getattr(args, "false_positive", None)
+    fn = getattr(args, "false_negative", None)
+    if name == "noisy" and fp is None and fn is None:
+        raise InvalidInput("--verifier noisy needs --false-positive and/or --false-negative rates")
+    return make_verifier(name, model=model, base_url=getattr(args, "base_url", None), false_positive=fp or 0.0,
+                         false_negative=fn or 0.0, seed=0, **opts)
+
+
+def heldout_set(args) -> Path:
+    """The held-out cases scored without --data (collected once, then reused)."""
+    from seal.collect import CollectOptions, collect
+    from seal.sim.suites import parse_task_ids
+
+    tasks = parse_task_ids(args.suite, args.tasks or "0,1,7")
+    out = HELDOUT_DIR / f"{args.suite}-{'_'.join(map(str, tasks))}-k{args.k}"
+    opts = CollectOptions(suite=args.suite, tasks=tasks, per_task=HELDOUT_PER_TASK, k=args.k, balance=True,
+                          init_source="fresh-heldout", inits_per_task=10, max_steps=getattr(args, "max_steps", None))
+    collect(opts, out)
+    return out
+
+
+async def _judge_all(verifier, requests, k: int):
+    verdicts, wall = [], 0.0
+    batched = hasattr(verifier, "verify_batch")
+    if batched and requests:  # one untimed batch first: the first forward pass pays one-off setup
+        verifier.verify_batch(requests[:k])
+    for start in range(0, len(requests), k):
+        batch = requests[start:start + k]
+        t0 = time.perf_counter()
+        if batched:
+            out = verifier.verify_batch(batch)
+        else:
+            out = await asyncio.gather(*(verifier.verify(r) for r in batch))
+        wall += time.perf_counter() - t0
+        verdicts += out
+    closer = getattr(verifier, "aclose", None)
+    if closer is not None:
+        await closer()
+    return verdicts, wall
+
+
+def score(verifier, data: Path, *, k: int = 10, limit: int | None = None) -> dict:
+    """Metrics of ``verifier`` on the cases under ``data``."""
+    cases = list(ds.iter_cases(data, limit=limit))
+    if not cases:
+        raise InvalidInput(f"{data} holds no cases")
+    requests = [ds.to_request(c) for c in cases]
+    verdicts, wall = asyncio.run(_judge_all(verifier, requests, k))
+    labels = [c.label for c in cases]
+    predicted = [v.success is True for v in verdicts]
+    out = {"verifier": verifier.name, "data": str(data), "cases": len(cases), "k": k, **binary_metrics(labels, predicted)}
+    out["unknown"] = sum(v.success is None for v in verdicts)
+    out["per_kind"] = {}
+    for kind in ds.KINDS:
+        idx = [i for i, c in enumerate(cases) if c.kind == kind]
+        if idx:
+            out["per_kind"][kind] = binary_metrics([labels[i] for i in idx], [predicted[i] for i in idx])
+    out["per_task"] = {}
+    for task in sorted({c.row["task"] for c in cases}):
+        idx = [i for i, c in enumerate(cases) if c.row["task"] == task]
+        m = binary_metrics([labels[i] for i in idx], [predicted[i] for i in idx])
+        out["per_task"][task] = {key: m[key] for key in ("n", "accuracy", "precision", "recall")}
+    out["ms_per_verdict"] = round(1000 * wall / len(cases), 3)
+    out["input_tokens"] = sum(v.input_tokens for v in verdicts)
+    out["output_tokens"] = sum(v.output_tokens for v in verdicts)
+    out["cost_usd"] = round(sum(v.cost_usd for v in verdicts), 6)
+    out["cached"] = sum(bool(v.extra.get("cached")) for v in verdicts)
+    out["cost_usd_uncached"] = round(out["cost_usd"] + sum(v.extra.get("original_cost_usd", 0.0) for v in verdicts), 6)
+    out["errors"] = sum(bool(v.extra.get("error")) for v in verdicts)
+    return out
+
+
+def markdown(result: dict) -> str:
+    head = ("| cases | n | accuracy | precision | recall | F1 | FP rate | FN rate | TP | FP | FN | TN |\n"
+            "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n")
+
+    def row(name, m):
+        c = m["confusion"]
+        cells = [m[key] for key in ("n", "accuracy", "precision", "recall", "f1", "fp_rate", "fn_rate")]
+        cells = ["-" if v is None else (f"{v:.3f}" if isinstance(v, float) else str(v)) for v in cells]
+        return f"| {name} | " + " | ".join(cells + [str(c[x]) for x in ("tp", "fp", "fn", "tn")]) + " |\n"
+
+    text = (f"**{result['verifier']}** on `{result['data']}`: {result['cases']} cases, "
+            f"{result['ms_per_verdict']} ms per verdict (K={result['k']}), {result['unknown']} unknown, "
+            f"{result['input_tokens']} input + {result['output_tokens']} output tokens, "
+            f"${result['cost_usd']:.4f} spent (${result['cost_usd_uncached']:.4f} uncached)\n\n")
+    text += head + row("all", result)
+    for kind, m in result["per_kind"].items():
+        text += row(kind, m)
+    return text
+
+
+def run(args) -> dict:
+    verifier = _build(args)
+    data = Path(args.data) if getattr(args, "data", None) else heldout_set(args)
+    result = score(verifier, data, k=args.k, limit=getattr(args, "limit", None))
+    if not getattr(args, "data", None):
+        result["heldout"] = ("collected on the spot: fresh init states from the fresh-heldout seed range "
+                             "(task_seed + 200000 + j), used by no training collection and no shipped init state")
+    if getattr(args, "out", None):
+        path = Path(args.out)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(markdown(result))
+        result["markdown"] = str(path)
+    return result

@@ -1,0 +1,341 @@
+"""`seal train verifier`: the learned verifier (`seal.verify.learned`) from verification cases.
+
+Data: a `seal verify collect` directory (`seal.verify.dataset`). Images are decoded once and
+downsampled to the model's input size with the model's own function (`prepare_images`), then
+kept in memory as uint8 and cached in ``RUN/cache-<size>.npz``.
+
+Held-out data, two ways:
+
+- by whole task: ``holdout_tasks`` (e.g. ``libero_10/1,libero_90/12``): none of their cases is
+  trained on; pick tasks whose kinds of action (pick, place, open...) other tasks also have;
+- by init state: of every other task, a fixed fraction of its init states (chosen by a hash of
+  task, init source and index) is held out with all its cases.
+
+Checkpoints: ``RUN/model.safetensors`` + ``RUN/config.json`` (the verifier loads RUN), and
+``RUN/train_state.pt`` (optimizer and step), written every ``save_every_s`` seconds and at the end,
+each aside then renamed. Batches and augmentation are drawn from generators seeded by (seed,
+step), so continuing from a checkpoint gives the same weights as never stopping. Logs:
+``metrics.jsonl`` (loss every ``log_every`` steps, held-out figures at every evaluation),
+``metrics.json`` (the final figures) and ``loss_curve.png``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from seal.errors import InvalidInput
+from seal.verify import dataset as ds
+from seal.verify.dataset import binary_metrics
+from seal.verify.learned import (WordVocab, build_net, context_of, default_config, load_checkpoint, prepare_images,
+                                 save_checkpoint)
+
+try:
+    import torch
+    from torch.nn import functional as F
+except ImportError as exc:  # torch is an extra: the steering loop itself never needs it
+    raise ImportError("training the learned verifier needs PyTorch: pip install -e '.[train]'") from exc
+
+STATE = "train_state.pt"
+METRICS = "metrics.jsonl"
+
+
+@dataclass(frozen=True)
+class VerifierTrainConfig:
+    steps: int = 2000
+    batch_size: int = 64
+    lr: float = 1e-3
+    weight_decay: float = 1e-4
+    image_size: int = 96
+    holdout_tasks: tuple[str, ...] = ()
+    holdout_inits: float = 0.2  # fraction of each remaining task's init states held out
+    seed: int = 0
+    shift: int = 4  # augmentation: random translation in pixels (at image_size)
+    log_every: int = 20
+    eval_every: int = 200
+    save_every_s: float = 300.0
+
+    def identity(self) -> dict:
+        """What a resumed run must share with the run it continues."""
+        d = asdict(self)
+        for k in ("steps", "log_every", "eval_every", "save_every_s"):
+            d.pop(k)
+        d["holdout_tasks"] = list(d["holdout_tasks"])
+        return d
+
+
+# ---- data ----------------------------------------------------------------------------------------------
+@dataclass
+class CaseArrays:
+    first: np.ndarray  # (n, 3, s, s) uint8
+    final: np.ndarray
+    wrist: np.ndarray
+    subplan: list[str]
+    context: list[str]
+    label: np.ndarray  # (n,) float32
+    task: list[str]
+    kind: list[str]
+    init_key: list[str]  # task:source:index
+
+    def __len__(self) -> int:
+        return len(self.label)
+
+
+def _downsample(pngs: list[bytes], size: int) -> np.ndarray:
+    out = np.empty((len(pngs), 3, size, size), dtype=np.uint8)
+    for start in range(0, len(pngs), 256):
+        chunk = np.stack([ds.decode_png(p) for p in pngs[start:start + 256]])
+        out[start:start + len(chunk)] = (prepare_images(chunk, size) * 255.0).round().clamp(0, 255).byte().numpy()
+    return out
+
+
+def load_arrays(data: Path, size: int, cache_dir: Path | None = None, progress=None) -> tuple[CaseArrays, str]:
+    """Every case of a collection at ``size`` px, and a fingerprint of the data."""
+    meta_cols = ["case_id", "task", "init_source", "init_index", "subplan", "plans", "subplan_index", "kind", "label"]
+    meta = ds.read_cases(data, columns=meta_cols).to_pydict()
+    n = len(meta["case_id"])
+    if n == 0:
+        raise InvalidInput(f"{data} holds no cases; collect some with `seal verify collect`")
+    fingerprint = hashlib.sha1("\n".join(meta["case_id"]).encode()).hexdigest()[:16]
+    cache = None if cache_dir is None else Path(cache_dir) / f"cache-{size}-{fingerprint}.npz"
+    if cache is not None and cache.is_file():
+        with np.load(cache) as f:
+            first, final, wrist = f["first"], f["final"], f["wrist"]
+    else:
+        import pyarrow.parquet as pq
+
+        views: list[list[np.ndarray]] = [[], [], []]
+        paths = ds.shard_paths(data)
+        for i, path in enumerate(paths):  # one shard's images in memory at a time
+            table = pq.read_table(path, columns=list(ds.IMAGE_COLUMNS))
+            for view, col in zip(views, ds.IMAGE_COLUMNS):
+                view.append(_downsample(table.column(col).to_pylist(), size))
+            if progress:
+                progress("images", i + 1, len(paths))
+        first, final, wrist = (np.concatenate(v) for v in views)
+        if cache is not None:
+            cache.parent.mkdir(parents=True, exist_ok=True)
+            tmp = cache.with_name("." + cache.name)
+            with open(tmp, "wb") as f:
+                np.savez(f, first=first, final=final, wrist=wrist)
+            tmp.replace(cache)
+    context = [context_of(s, p, None if i < 0 else i)
+               for s, p, i in zip(meta["subplan"], meta["plans"], meta["subplan_index"])]
+    init_key = [f"{t}:{s}:{i}" for t, s, i in zip(meta["task"], meta["init_source"], meta["init_index"])]
+    return CaseArrays(first, final, wrist, list(meta["subplan"]), context,
+                      np.asarray(meta["label"], dtype=np.float32), list(meta["task"]), list(meta["kind"]),
+                      init_key), fingerprint
+
+
+def split(arrays: CaseArrays, cfg: VerifierTrainConfig) -> dict[str, np.ndarray]:
+    """Indices of train / heldout_inits / heldout_tasks."""
+    tasks = sorted(set(arrays.task))
+    unknown = [t for t in cfg.holdout_tasks if t not in tasks]
+    if unknown:
+        raise InvalidInput(f"--holdout-tasks {unknown} not in the data; its tasks: {', '.join(tasks)}")
+    held_task = np.array([t in cfg.holdout_tasks for t in arrays.task])
+
+    def held_init(key: str) -> bool:
+        h = int.from_bytes(hashlib.sha1(f"{cfg.seed}:{key}".encode()).digest()[:8], "big") / 2**64
+        return h < cfg.holdout_inits
+
+    held_init_mask = np.array([held_init(k) for k in arrays.init_key]) & ~held_task
+    train = ~held_task & ~held_init_mask
+    if not train.any():
+        raise InvalidInput("nothing left to train on after the held-out splits")
+    return {"train": np.flatnonzero(train), "heldout_inits": np.flatnonzero(held_init_mask),
+            "heldout_tasks": np.flatnonzero(held_task)}
+
+
+# ---- metrics ----------------------------------------------------------------------------------------------
+def _predict(net, arrays: CaseArrays, idx: np.ndarray, vocab: WordVocab, max_words: int, batch: int = 256):
+    probs = []
+    net.eval()
+    with torch.inference_mode():
+        for s in range(0, len(idx), batch):
+            b = idx[s:s + batch]
+            probs.append(torch.sigmoid(net(*_tensors(arrays, b, vocab, max_words))).numpy())
+    net.train()
+    return np.concatenate(probs) if probs else np.zeros(0)
+
+
+def evaluate(net, arrays, idx, vocab, max_words, threshold) -> dict | None:
+    if len(idx) == 0:
+        return None
+    probs = _predict(net, arrays, idx, vocab, max_words)
+    out = binary_metrics(arrays.label[idx] > 0.5, probs >= threshold)
+    kinds = np.array(arrays.kind)[idx]
+    out["per_kind"] = {k: binary_metrics(arrays.label[idx][kinds == k] > 0.5, (probs >= threshold)[kinds == k])
+                       for k in ds.KINDS if (kinds == k).any()}
+    return out
+
+
+# ---- training ---------------------------------------------------------------------------------------------
+def _tensors(arrays: CaseArrays, idx: np.ndarray, vocab: WordVocab, max_words: int, shifts=None):
+    views = [torch.from_numpy(a[idx]).float().div_(255.0) for a in (arrays.first, arrays.final, arrays.wrist)]
+    if shifts is not None:  # one translation for both front views (keeps their difference), one for the wrist
+        (ay, ax), (wy, wx) = shifts
+        views[0] = _shift(views[0], ay, ax)
+        views[1] = _shift(views[1], ay, ax)
+        views[2] = _shift(views[2], wy, wx)
+    sub = torch.from_numpy(vocab.encode([arrays.subplan[i] for i in idx], max_words))
+    ctx = torch.from_numpy(vocab.encode([arrays.context[i] for i in idx], max_words))
+    return (*views, sub, ctx)
+
+
+def _shift(x, dy: np.ndarray, dx: np.ndarray):
+    """Per-sample translation with edge padding."""
+    pad = int(max(np.abs(dy).max(initial=0), np.abs(dx).max(initial=0)))
+    if pad == 0:
+        return x
+    s = x.shape[-1]
+    padded = F.pad(x, (pad, pad, pad, pad), mode="replicate")
+    return torch.stack([padded[i, :, pad + dy[i]:pad + dy[i] + s, pad + dx[i]:pad + dx[i] + s]
+                        for i in range(len(x))])
+
+
+def _save_state(out: Path, obj: dict) -> None:
+    tmp = out / f".{STATE}.tmp"
+    torch.save(obj, tmp)
+    tmp.replace(out / STATE)
+
+
+def train_verifier(data: Path, out: Path, cfg: VerifierTrainConfig, *, progress=None, threads: int | None = 1) -> dict:
+    """Train (or continue training) into ``out``; returns the summary written to metrics.json.
+
+    ``progress(stage, done, total, info)``: stage "load" then "train"."""
+    if threads:
+        torch.set_num_threads(threads)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    arrays, fingerprint = load_arrays(Path(data), cfg.image_size, cache_dir=out,
+                                      progress=(lambda s, d, t: progress("load", d, t, "")) if progress else None)
+    parts = split(arrays, cfg)
+    train_idx = parts["train"]
+    state_path = out / STATE
+    if state_path.is_file():
+        state = torch.load(state_path, weights_only=True)
+        saved = json.loads(state["identity"])
+        if saved != cfg.identity() or state["data"] != fingerprint:
+            raise InvalidInput(f"{out} was trained with other settings or data (saved {saved}, data {state['data']}; "
+                               f"now {cfg.identity()}, data {fingerprint}); use another --out")
+        net, config, vocab = load_checkpoint(out)
+        net.train()
+        step = int(state["step"])
+    else:
+        vocab = WordVocab.build([arrays.subplan[i] for i in train_idx] + [arrays.context[i] for i in train_idx])
+        config = default_config(vocab, cfg.image_size)
+        torch.manual_seed(cfg.seed)
+        net = build_net(config)
+        step, state = 0, None
+    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    if state is not None:
+        opt.load_state_dict(state["optimizer"])
+    max_words, threshold = int(config["max_words"]), float(config["threshold"])
+    if len(train_idx) < 2:
+        raise InvalidInput(f"only {len(train_idx)} training case(s); collect more")
+
+    def summary(final: bool) -> dict:
+        return {"step": step, "data": str(data), "data_fingerprint": fingerprint,
+                "split": {k: int(len(v)) for k, v in parts.items()},
+                "holdout_tasks": list(cfg.holdout_tasks), "holdout_inits": cfg.holdout_inits,
+                "train": evaluate(net, arrays, train_idx[:2000], vocab, max_words, threshold) if final else None,
+                "heldout_inits": evaluate(net, arrays, parts["heldout_inits"], vocab, max_words, threshold),
+                "heldout_tasks": evaluate(net, arrays, parts["heldout_tasks"], vocab, max_words, threshold)}
+
+    def checkpoint() -> None:
+        config["training"] = {"step": step, "data_fingerprint": fingerprint, "config": cfg.identity()}
+        save_checkpoint(out, net, config)
+        _save_state(out, {"identity": json.dumps(cfg.identity()), "data": fingerprint, "step": step,
+                          "optimizer": opt.state_dict()})
+
+    net.train()
+    last_save = time.monotonic()
+    t0, s0, losses = time.perf_counter(), step, []
+    with open(out / METRICS, "a") as log:
+        while step < cfg.steps:
+            rng = np.random.default_rng([cfg.seed, step])
+            idx = train_idx[rng.integers(0, len(train_idx), min(cfg.batch_size, len(train_idx)))]
+            b = len(idx)
+            shifts = (tuple(rng.integers(-cfg.shift, cfg.shift + 1, (2, b))),
+                      tuple(rng.integers(-cfg.shift, cfg.shift + 1, (2, b)))) if cfg.shift else None
+            torch.manual_seed(cfg.seed * 1_000_003 + step)
+            logits = net(*_tensors(arrays, idx, vocab, max_words, shifts))
+            loss = F.binary_cross_entropy_with_logits(logits, torch.from_numpy(arrays.label[idx]))
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            step += 1
+            losses.append(loss.item())
+            info = f"loss {np.mean(losses[-20:]):.4f}"
+            if step % cfg.log_every == 0 or step == cfg.steps:
+                row = {"step": step, "loss": round(float(np.mean(losses[-cfg.log_every:])), 5),
+                       "steps_per_s": round((step - s0) / (time.perf_counter() - t0), 2)}
+                if step % cfg.eval_every == 0 or step == cfg.steps:
+                    s = summary(final=False)
+                    row |= {k: {m: s[k][m] for m in ("accuracy", "precision", "recall", "f1")} if s[k] else None
+                            for k in ("heldout_inits", "heldout_tasks")}
+                log.write(json.dumps(row) + "\n")
+                log.flush()
+            if time.monotonic() - last_save >= cfg.save_every_s:
+                checkpoint()
+                last_save = time.monotonic()
+            if progress:
+                progress("train", step, cfg.steps, info)
+    checkpoint()
+    result = summary(final=True)
+    (out / "metrics.json").write_text(json.dumps(result, indent=1))
+    plot_loss(out)
+    write_manifest(out, result)
+    return result
+
+
+def write_manifest(out: Path, result: dict) -> Path:
+    """``manifest.json``: what a shipped checkpoint is (files with sha256 and size, the data it
+    was trained on, its held-out figures). Shipping = copying model.safetensors, config.json and
+    manifest.json into ``seal/verify/checkpoints/learned/``."""
+    files = {}
+    for name in ("model.safetensors", "config.json"):
+        data = (out / name).read_bytes()
+        files[name] = {"sha256": hashlib.sha256(data).hexdigest(), "bytes": len(data)}
+
+    def headline(m):
+        return None if not m else {k: m[k] for k in ("n", "accuracy", "precision", "recall", "f1")}
+
+    manifest = {"model": "seal-learned-verifier", "files": files, "step": result["step"], "data": result["data"],
+                "data_fingerprint": result["data_fingerprint"], "split": result["split"],
+                "holdout_tasks": result["holdout_tasks"], "heldout_inits": headline(result["heldout_inits"]),
+                "heldout_tasks": headline(result["heldout_tasks"]),
+                "command": "seal train verifier (see docs/verifier.md)"}
+    (out / "manifest.json").write_text(json.dumps(manifest, indent=1))
+    return out / "manifest.json"
+
+
+def plot_loss(out: Path) -> Path | None:
+    rows = [json.loads(line) for line in (out / METRICS).read_text().splitlines() if line.strip()]
+    if not rows:
+        return None
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    ax.plot([r["step"] for r in rows], [r["loss"] for r in rows], label="training loss (BCE)")
+    for key, style in (("heldout_inits", "o-"), ("heldout_tasks", "s-")):
+        pts = [(r["step"], r[key]["accuracy"]) for r in rows if r.get(key)]
+        if pts:
+            ax.plot(*zip(*pts), style, label=f"{key.replace('_', ' ')} accuracy")
+    ax.set_xlabel("step")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    path = out / "loss_curve.png"
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path

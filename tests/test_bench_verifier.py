@@ -1,0 +1,122 @@
+"""`seal bench verifier` on recorded cases: the VLM paths against a local OpenAI-/Gemini-compatible
+server (answers cached: a second run sends nothing), the oracle and the noisy oracle; and the
+case layout itself (no simulator)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from _local_http import scrub_env, serving
+from _verifier_cases import make_row
+from test_vlm_verifier import BAD, GEMINI_PATH, KEY, FakeServer, Reply, _make_handler
+
+from seal.cli import main
+from seal.errors import InvalidInput
+from seal.verify import dataset as ds
+from seal.vlm import PRICES_PER_MTOK
+
+LABELS = [True, False, True, False, False, True]  # 3 successes, 3 failures
+
+
+@pytest.fixture
+def server(monkeypatch):
+    scrub_env(monkeypatch)
+    monkeypatch.setenv("OPENAI_API_KEY", KEY)
+    monkeypatch.setenv("GOOGLE_API_KEY", KEY)
+    fake = FakeServer(url="")
+    with serving(fake, _make_handler(fake)):
+        yield fake
+
+
+@pytest.fixture
+def cases(tmp_path):
+    rows = [make_row(i, label=label) for i, label in enumerate(LABELS)]
+    ds.write_shard(tmp_path / "cases", ds.shard_name("libero_10", 0, 0), rows)
+    ds.write_info(tmp_path / "cases", {"collection": {}})
+    return tmp_path / "cases"
+
+
+def _bench(capsys, *argv) -> dict:
+    assert main(["bench", "verifier", *argv]) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def test_openai_scored_against_truth_and_never_paid_twice(server, cases, tmp_path, capsys):
+    args = ["--verifier", "openai", "--base-url", f"{server.url}/v1", "--data", str(cases),
+            "--cache-dir", str(tmp_path / "cache"), "--out", str(tmp_path / "openai.md")]
+    first = _bench(capsys, *args)  # the server answers "Success" to everything
+    assert server.calls == 6 and all(path == "/v1/chat/completions" for path, _, _ in server.requests)
+    assert first["confusion"] == {"tp": 3, "fp": 3, "fn": 0, "tn": 0}
+    assert first["precision"] == 0.5 and first["recall"] == 1.0 and first["fp_rate"] == 1.0
+    assert first["per_kind"]["pick"]["n"] == 6
+    assert first["input_tokens"] == 6 * 1200 and first["output_tokens"] == 6 * 80
+    pin, pout = PRICES_PER_MTOK["gpt-4o"]
+    assert first["cost_usd"] == pytest.approx(6 * (1200 * pin + 80 * pout) / 1e6)
+    assert "| all | 6 |" in (tmp_path / "openai.md").read_text()
+
+    again = _bench(capsys, *args)
+    assert server.calls == 6  # every answer came from the cache
+    assert again["cached"] == 6 and again["cost_usd"] == 0 and again["input_tokens"] == 0
+    assert again["cost_usd_uncached"] == pytest.approx(first["cost_usd"])
+    assert again["confusion"] == first["confusion"]
+
+
+def test_gemini_path_and_failure_answers(server, cases, tmp_path, capsys):
+    server.default = Reply(BAD)
+    result = _bench(capsys, "--verifier", "gemini", "--base-url", server.url, "--data", str(cases),
+                    "--cache-dir", str(tmp_path / "cache"), "--k", "3")
+    assert server.calls == 6 and all(GEMINI_PATH.match(path) for path, _, _ in server.requests)
+    assert result["confusion"] == {"tp": 0, "fp": 0, "fn": 3, "tn": 3} and result["fn_rate"] == 1.0
+    assert result["output_tokens"] == 6 * (80 + 30)  # thinking tokens are billed as output
+
+
+def test_oracle_and_noisy_on_recorded_truth(cases, capsys):
+    oracle = _bench(capsys, "--verifier", "oracle", "--data", str(cases))
+    assert oracle["accuracy"] == 1.0 and oracle["unknown"] == 0
+    noisy = _bench(capsys, "--verifier", "noisy", "--false-positive", "1", "--data", str(cases))
+    assert noisy["confusion"] == {"tp": 3, "fp": 3, "fn": 0, "tn": 0}
+    with pytest.raises(InvalidInput, match="false-positive"):
+        from seal.benchmarks.verifier import run
+        from argparse import Namespace
+
+        run(Namespace(verifier="noisy", data=str(cases), k=10, false_positive=None, false_negative=None))
+
+
+def test_case_layout_round_trip_and_torn_writes(cases):
+    (cases / "data" / ".shard-libero_10-000-00009.parquet.tmp").write_bytes(b"PAR1 half a file")
+    table = ds.read_cases(cases)
+    assert table.num_rows == 6 and table.schema == ds.arrow_schema()
+    case = next(ds.iter_cases(cases, limit=1))
+    assert all(img.shape == (224, 224, 3) for img in case.images)
+    req = ds.to_request(case)
+    assert req.scene.facts == dict(zip(case.row["atoms"], case.row["atom_values"]))
+    info = json.loads((cases / "info.json").read_text())
+    assert set(info["columns"]) == set(ds.COLUMNS) and info["image_size"] == 224
+    (cases / "info.json").write_text(json.dumps({"format": "other"}))
+    with pytest.raises(InvalidInput, match="not a seal-verification-cases"):
+        ds.read_cases(cases)
+
+
+@pytest.mark.parametrize("subplan,atoms,kind", [
+    ("pick up the alphabet soup", ["Grasped(alphabet_soup_1)"], "pick"),
+    ("place it in the basket", ["In(alphabet_soup_1, basket_1_contain_region)"], "place"),
+    ("put the mug on the plate", ["On(red_coffee_mug_1, plate_1)"], "place"),
+    ("open the top drawer of the cabinet", ["Open(wooden_cabinet_1_top_region)"], "open"),
+    ("close the microwave", ["Close(microwave_1)"], "close"),
+    ("turn on the stove", ["TurnOn(flat_stove_1)"], "turn"),
+    ("switch off the burner", [], "turn"),
+    ("grab the bowl", [], "pick"),
+    ("shut the door", [], "close"),
+    ("wipe the table", [], "other"),
+])
+def test_subplan_kinds(subplan, atoms, kind):
+    assert ds.subplan_kind(subplan, atoms) == kind
+
+
+def test_binary_metrics():
+    m = ds.binary_metrics([True, True, False, False, False], [True, False, True, False, False])
+    assert m["confusion"] == {"tp": 1, "fp": 1, "fn": 1, "tn": 2}
+    assert m["accuracy"] == 0.6 and m["precision"] == 0.5 and m["recall"] == 0.5 and m["f1"] == 0.5
+    assert m["fp_rate"] == pytest.approx(1 / 3, abs=1e-4) and m["fn_rate"] == 0.5

@@ -1,0 +1,158 @@
+"""The learned verifier: training on cases, held-out splits, exact resume, checkpoint checks,
+batching, the registry and `seal bench verifier --verifier learned:RUN` (no simulator)."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from _verifier_cases import write_cases
+
+from seal.cli import main
+from seal.errors import InvalidInput
+from seal.steer.method import MethodSpec
+from seal.verify import dataset as ds
+from seal.verify import make_verifier
+from seal.verify.learned import DEFAULT_CHECKPOINT, LearnedVerifier, load_checkpoint
+
+torch = pytest.importorskip("torch")
+from seal.train.verifier import VerifierTrainConfig, split, load_arrays, train_verifier  # noqa: E402
+
+CFG = VerifierTrainConfig(steps=120, batch_size=32, image_size=32, lr=3e-3, holdout_tasks=("libero_10/1",),
+                          holdout_inits=0.25, eval_every=40)
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    return write_cases(tmp_path_factory.mktemp("cases"), 120, tasks=("libero_10/0", "libero_10/1"), inits=8)
+
+
+@pytest.fixture(scope="module")
+def run(data, tmp_path_factory):
+    out = tmp_path_factory.mktemp("run")
+    summary = train_verifier(data, out, CFG)
+    return out, summary
+
+
+def test_training_learns_text_conditioned_success_and_reports_both_holdouts(run):
+    out, summary = run
+    # Success needs the block the sub-plan names: a model ignoring the text could not pass this.
+    assert summary["split"] == {"train": 90, "heldout_inits": 30, "heldout_tasks": 120}
+    for part in ("heldout_inits", "heldout_tasks"):
+        assert summary[part]["accuracy"] >= 0.95 and summary[part]["precision"] >= 0.95, summary[part]
+        assert "pick" in summary[part]["per_kind"]
+    for name in ("model.safetensors", "config.json", "train_state.pt", "metrics.json", "metrics.jsonl",
+                 "loss_curve.png", "manifest.json"):
+        assert (out / name).is_file(), name
+    rows = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
+    assert rows[-1]["step"] == 120 and rows[0]["loss"] > rows[-1]["loss"]
+    assert (out / "model.safetensors").stat().st_size < 20e6
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["files"]["model.safetensors"]["bytes"] == (out / "model.safetensors").stat().st_size
+
+
+def test_heldout_splits_share_no_task_or_init_state_with_training(data):
+    arrays, _ = load_arrays(data, 32)
+    parts = split(arrays, CFG)
+    train_tasks = {arrays.task[i] for i in parts["train"]}
+    assert "libero_10/1" not in train_tasks and {arrays.task[i] for i in parts["heldout_tasks"]} == {"libero_10/1"}
+    assert not {arrays.init_key[i] for i in parts["train"]} & {arrays.init_key[i] for i in parts["heldout_inits"]}
+    with pytest.raises(InvalidInput, match="libero_90/3"):
+        split(arrays, VerifierTrainConfig(holdout_tasks=("libero_90/3",)))
+
+
+def test_resuming_gives_the_weights_of_an_uninterrupted_run(data, tmp_path):
+    cfg = VerifierTrainConfig(steps=6, batch_size=8, image_size=32, holdout_inits=0.25)
+    train_verifier(data, tmp_path / "straight", cfg)
+    train_verifier(data, tmp_path / "resumed", VerifierTrainConfig(**{**cfg.__dict__, "steps": 3}))
+    train_verifier(data, tmp_path / "resumed", cfg)
+    a, _, _ = load_checkpoint(tmp_path / "straight")
+    b, _, _ = load_checkpoint(tmp_path / "resumed")
+    for (name, x), y in zip(a.state_dict().items(), b.state_dict().values()):
+        assert torch.equal(x, y), name
+    with pytest.raises(InvalidInput, match="other settings"):
+        train_verifier(data, tmp_path / "resumed", VerifierTrainConfig(**{**cfg.__dict__, "lr": 0.1}))
+
+
+def test_bad_checkpoints_are_refused_with_what_is_wrong(run, tmp_path):
+    out, _ = run
+    bad = tmp_path / "truncated"
+    shutil.copytree(out, bad, ignore=shutil.ignore_patterns("*.npz", "train_state.pt"))
+    data = (bad / "model.safetensors").read_bytes()
+    (bad / "model.safetensors").write_bytes(data[: len(data) // 2])
+    with pytest.raises(InvalidInput, match="model.safetensors"):
+        LearnedVerifier(bad)
+    wrong = tmp_path / "wrong"
+    shutil.copytree(out, wrong, ignore=shutil.ignore_patterns("*.npz", "train_state.pt"))
+    config = json.loads((wrong / "config.json").read_text())
+    config["widths"] = [32, 64, 96, 256]
+    (wrong / "config.json").write_text(json.dumps(config))
+    with pytest.raises(InvalidInput, match="shape"):
+        LearnedVerifier(wrong)
+    del config["vocab"]
+    (wrong / "config.json").write_text(json.dumps(config))
+    with pytest.raises(InvalidInput, match="vocab"):
+        LearnedVerifier(wrong)
+    with pytest.raises(InvalidInput, match="no learned-verifier checkpoint"):
+        LearnedVerifier(tmp_path / "nothing")
+    if not (DEFAULT_CHECKPOINT / "model.safetensors").is_file():
+        with pytest.raises(InvalidInput, match="seal train verifier"):
+            make_verifier("learned")
+
+
+def _requests(data, n=10):
+    return [ds.to_request(c) for c in ds.iter_cases(data, limit=n)]
+
+
+def test_round_requests_are_judged_in_one_batch(run, data):
+    out, _ = run
+    v = make_verifier(f"learned:{out}")
+    reqs = _requests(data)
+    direct = v.verify_batch(reqs)
+    before = v.batches
+
+    async def together():
+        return await asyncio.gather(*(v.verify(r) for r in reqs))
+
+    verdicts = asyncio.run(together())
+    assert v.batches == before + 1  # ten concurrent requests, one forward pass
+    assert [x.score for x in verdicts] == pytest.approx([x.score for x in direct], abs=1e-6)
+    assert all(x.success == (x.score >= v.threshold) for x in verdicts)
+    assert v.atoms_needed(reqs[0], []) == [] and v.needs_images
+
+
+def test_method_spec_names_the_checkpoint_and_hashes_its_weights(run, tmp_path):
+    out, _ = run
+    spec = MethodSpec(verifier=f"learned:{out}")
+    assert spec.verifier == "learned" and spec.model == str(out)
+    copy = tmp_path / "copy"
+    shutil.copytree(out, copy, ignore=shutil.ignore_patterns("*.npz"))
+    assert MethodSpec(verifier="learned", model=str(copy)).config_hash == spec.config_hash  # same weights
+    weights = copy / "model.safetensors"
+    net, config, _ = load_checkpoint(copy)
+    with torch.no_grad():
+        next(net.parameters()).add_(1.0)
+    from seal.verify.learned import save_checkpoint
+
+    save_checkpoint(copy, net, config)
+    assert weights.is_file() and MethodSpec(verifier="learned", model=str(copy)).config_hash != spec.config_hash
+    with pytest.raises(InvalidInput, match="only learned"):
+        MethodSpec(verifier="oracle:x")
+
+
+def test_bench_verifier_scores_the_learned_verifier(run, data, tmp_path, capsys):
+    out, _ = run
+    md = tmp_path / "learned.md"
+    assert main(["bench", "verifier", "--verifier", f"learned:{out}", "--data", str(data), "--out", str(md),
+                 "--limit", "60"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["cases"] == 60 and result["accuracy"] >= 0.95
+    assert result["ms_per_verdict"] < 50 and result["cost_usd"] == 0
+    c = result["confusion"]
+    assert c["tp"] + c["fp"] + c["fn"] + c["tn"] == 60
+    assert "| pick |" in md.read_text()
+    assert np.isclose(result["fp_rate"], c["fp"] / max(c["fp"] + c["tn"], 1))
