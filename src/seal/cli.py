@@ -570,7 +570,8 @@ def _add_bench(sub) -> None:
     bench.add_argument("--latency", type=float, default=2.0, help="runtime: fixed verifier latency in seconds")
     bench.add_argument("--policy", default=None,
                        help="runtime: scripted (state only), pixels (the expert reading both cameras every chunk, "
-                            "a VLA's rendering without its network) or vla[:PATH]")
+                            "a VLA's rendering without its network) or vla[:PATH]; steer/verifier-sweep: the policy "
+                            "(default scripted)")
     bench.add_argument("--image-size", type=int, default=None, help="runtime: camera px for pixel policies (64)")
     bench.add_argument("--render", default=None, choices=["stock", "fast"],
                        help="runtime: render model (default: fast for pixel policies)")
@@ -606,7 +607,6 @@ def _add_bench(sub) -> None:
     vb.add_argument("--fn", default=None, help="verifier-sweep: false-negative rates (default 0,0.2,0.4)")
     vb.add_argument("--points", default=None,
                     help="verifier-sweep: comma-separated `seal bench verifier` JSON files to draw as measured points")
-    vb.add_argument("--policy", default=None, help="verifier-sweep/steer: policy (default scripted)")
     bench.set_defaults(func=_cmd_bench)
 
 
