@@ -264,7 +264,8 @@ _METHOD_OPTIONS = (
     ("--false-negative", float, "noisy verifier: false-negative rate"),
     ("--value-ckpt", str, "value: checkpoint file or run directory (`seal train value`)"),
     ("--value-goal", str, "value: condition the Q-function on the task (V-GPS, default) or the sub-plan"),
-    ("--policy", str, "scripted (default) | remote: an openpi-protocol server at --host/--port (docs/serving.md)"),
+    ("--policy", str, "scripted (default) | remote: an openpi-protocol server at --host/--port (docs/serving.md) | "
+                      "vla[:PATH]: a learned VLA checkpoint (default: the shipped one; vla:twin for its twin)"),
     ("--knobs", str, "scripted expert's failure setting: clean | misaligned (default)"),
     ("--host", str, "remote policy server host (or a ws:// URI; default 127.0.0.1)"),
     ("--port", int, "remote policy server port (default 8000)"),
