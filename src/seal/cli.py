@@ -76,14 +76,16 @@ def _cmd_demos(args) -> int:
 
 
 def _cmd_train(args) -> int:
+    if args.what == "vla":
+        return _cmd_train_vla(args)
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     from seal.train.pipeline import train_value_on_dataset
     from seal.train.vgps import IQLConfig
 
-    cfg = IQLConfig(steps=args.steps, batch_size=args.batch_size, lr=args.lr, gamma=args.gamma,
-                    expectile=args.expectile, seed=args.seed)
+    cfg = IQLConfig(steps=args.steps or 3000, batch_size=args.batch_size or 128, lr=args.lr or 3e-4, gamma=args.gamma,
+                    expectile=args.expectile, seed=0 if args.seed is None else args.seed)
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TextColumn("{task.fields[info]}"), TimeRemainingColumn(), console=Console(stderr=True)) as bar:
         jobs: dict = {}
@@ -96,8 +98,52 @@ def _cmd_train(args) -> int:
             bar.update(jobs[stage], completed=done, total=total, info=info)
 
         summary = train_value_on_dataset(Path(args.dataset), Path(args.out), goals=args.goals,
-                                         holdout=args.holdout, cfg=cfg, progress=progress)
+                                         holdout=0.2 if args.holdout is None else args.holdout, cfg=cfg,
+                                         progress=progress)
     print(json.dumps({k: summary[k] for k in ("train_transitions", "last", "heldout", "train_fit") if k in summary}))
+    return 0
+
+
+def _cmd_train_vla(args) -> int:
+    from dataclasses import replace
+
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from seal.policies.vla.model import VLAConfig
+    from seal.train.vla import TrainConfig, train_vla
+
+    if not args.annotations:
+        raise InvalidInput("seal train vla needs --annotations (a `seal annotate` output directory)")
+    given = {"steps": args.steps, "batch_size": args.batch_size, "lr": args.lr, "holdout": args.holdout,
+             "device": args.device, "threads": args.threads, "save_minutes": args.save_minutes,
+             "eval_every": args.eval_every, "bf16": args.bf16, "seed": args.seed}
+    cfg = replace(TrainConfig(), **{k: v for k, v in given.items() if v is not None})
+    model_cfg = VLAConfig()
+    if args.model_config:
+        try:
+            model_cfg = VLAConfig.from_dict({**model_cfg.to_dict(), **json.loads(Path(args.model_config).read_text())})
+        except (OSError, json.JSONDecodeError, TypeError) as exc:
+            raise InvalidInput(f"--model-config {args.model_config}: {exc}") from None
+    if args.no_reasoning:
+        model_cfg = replace(model_cfg, reasoning=False)
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                  TextColumn("{task.fields[info]}"), TimeRemainingColumn(), console=Console(stderr=True)) as bar:
+        jobs: dict = {}
+
+        def progress(stage, done, total, metrics=None):
+            if stage not in jobs:
+                jobs[stage] = bar.add_task("decoding episodes" if stage == "cache" else "training", total=total,
+                                           info="")
+            info = ""
+            if metrics:
+                info = f"loss {metrics['loss']:.4f}  {metrics['samples_per_s']:.1f} samples/s"
+            bar.update(jobs[stage], completed=done, total=total, info=info)
+
+        summary = train_vla(Path(args.dataset) if args.dataset else None, Path(args.annotations), Path(args.out),
+                            cfg, model_cfg, cache=Path(args.cache) if args.cache else None, progress=progress,
+                            command="seal " + " ".join(sys.argv[1:]))
+    print(json.dumps({k: summary[k] for k in ("run", "step", "params", "last", "heldout")}))
     return 0
 
 
@@ -335,19 +381,35 @@ def _add_demos(sub) -> None:
 
 
 def _add_train(sub) -> None:
-    train = sub.add_parser("train", help="learned models; `value`: the V-GPS baseline's IQL Q-function")
-    train.add_argument("what", choices=["value"])
-    train.add_argument("--dataset", required=True, help="LeRobot dataset (e.g. from `seal demos record --keep-failures`)")
-    train.add_argument("--out", required=True, help="run directory: checkpoint.pt, metrics.jsonl, summary.json")
-    train.add_argument("--goals", default="both", choices=["task", "subplan", "both"],
+    train = sub.add_parser("train", help="learned models: `value` (the V-GPS baseline's IQL Q-function), `vla` "
+                                         "(the reasoning VLA or, with --no-reasoning, its pi0 twin)")
+    train.add_argument("what", choices=["value", "vla"])
+    train.add_argument("--dataset", default=None,
+                       help="LeRobot dataset (value: required; vla: default the one the annotations name)")
+    train.add_argument("--out", required=True, help="run directory (re-running continues from its checkpoint)")
+    train.add_argument("--steps", type=int, default=None, help="gradient updates (value 3000, vla 9000)")
+    train.add_argument("--batch-size", "--batch", dest="batch_size", type=int, default=None,
+                       help="value 128, vla 32")
+    train.add_argument("--lr", type=float, default=None, help="value 3e-4, vla 3e-4 (cosine decay)")
+    train.add_argument("--holdout", type=float, default=None,
+                       help="fraction of episodes held out for the check (value 0.2, vla 0.1)")
+    train.add_argument("--seed", type=int, default=None)
+    value = train.add_argument_group("value")
+    value.add_argument("--goals", default="both", choices=["task", "subplan", "both"],
                        help="goal texts to condition on: the task instruction, each sub-plan, or both")
-    train.add_argument("--steps", type=int, default=3000, help="gradient updates (re-running continues to this)")
-    train.add_argument("--batch-size", type=int, default=128)
-    train.add_argument("--lr", type=float, default=3e-4)
-    train.add_argument("--gamma", type=float, default=0.9, help="discount per 5-step chunk")
-    train.add_argument("--expectile", type=float, default=0.7, help="IQL's tau")
-    train.add_argument("--holdout", type=float, default=0.2, help="fraction of episodes held out for the check")
-    train.add_argument("--seed", type=int, default=0)
+    value.add_argument("--gamma", type=float, default=0.9, help="discount per 5-step chunk")
+    value.add_argument("--expectile", type=float, default=0.7, help="IQL's tau")
+    vla = train.add_argument_group("vla")
+    vla.add_argument("--annotations", default=None, help="`seal annotate` output directory (reasoning labels)")
+    vla.add_argument("--no-reasoning", action="store_true", help="train the non-reasoning twin (pi0 baseline)")
+    vla.add_argument("--device", default=None, help="cpu (default) | cuda")
+    vla.add_argument("--cache", default=None, help="frame cache directory (default RUN/cache; reusable across runs)")
+    vla.add_argument("--threads", type=int, default=None, help="torch threads (default 1)")
+    vla.add_argument("--bf16", action=argparse.BooleanOptionalAction, default=None,
+                     help="bf16 autocast (default on; docs/performance.md)")
+    vla.add_argument("--save-minutes", type=float, default=None, help="checkpoint interval (default 10)")
+    vla.add_argument("--eval-every", type=int, default=None, help="held-out evaluation interval in steps (500)")
+    vla.add_argument("--model-config", default=None, help="JSON file of VLAConfig fields to override")
     train.set_defaults(func=_cmd_train)
 
 
@@ -448,8 +510,11 @@ def _add_annotate(sub) -> None:
 def _add_bench(sub) -> None:
     bench = sub.add_parser("bench", help="benchmarks; each prints one JSON object")
     bench.add_argument("what", choices=["sim", "expert", "steer", "runtime", "eval", "serve", "annotate",
-                                                       "value"])
-    bench.add_argument("--dataset", default=None, help="annotate/value: LeRobot dataset directory")
+                                                       "value", "vla"])
+    bench.add_argument("--ckpt", default=None, help="vla: checkpoint (default: a random-init model of the default "
+                                                     "config; 'reason'/'twin': the shipped ones)")
+    bench.add_argument("--annotations", default=None, help="vla: annotations for the held-out figures")
+    bench.add_argument("--dataset", default=None, help="annotate/value/vla: LeRobot dataset directory")
     bench.add_argument("--steps", type=int, default=None, help="value: training updates on --dataset (default 300)")
     bench.add_argument("--backend", default="offline", choices=["offline", "gemini", "openai"],
                        help="annotate: annotation backend")

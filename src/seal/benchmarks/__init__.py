@@ -13,7 +13,8 @@ BENCHMARKS = {"sim": "seal.benchmarks.sim:run", "expert": "seal.benchmarks.exper
               "eval": "seal.benchmarks.eval:run",
               "serve": "seal.benchmarks.serve:run",
               "annotate": "seal.benchmarks.annotate:run",
-              "value": "seal.benchmarks.value:run"}
+              "value": "seal.benchmarks.value:run",
+              "vla": "seal.benchmarks.vla:run"}
 
 
 # `--trials` when not given, per benchmark (what it counts differs: init states per task, trials of

@@ -400,7 +400,9 @@ def train_vla(dataset: Path | None, annotations: Path, out: Path, cfg: TrainConf
     think_rows = np.flatnonzero(labels.think_frames < n_train)
     fingerprint = _fingerprint(frames, labels, model_cfg)
 
-    model = VLAModel(model_cfg).to(cfg.device)
+    with torch.random.fork_rng(devices=[]):  # seeded initial weights without touching the caller's RNG
+        torch.manual_seed(cfg.seed)
+        model = VLAModel(model_cfg).to(cfg.device)
     decay = [p for n, p in model.named_parameters() if p.ndim >= 2 and n != "pos" and not n.endswith(".pos")]
     rest = [p for n, p in model.named_parameters() if not (p.ndim >= 2 and n != "pos" and not n.endswith(".pos"))]
     opt = torch.optim.AdamW([{"params": decay, "weight_decay": cfg.weight_decay}, {"params": rest, "weight_decay": 0.0}],
@@ -649,3 +651,28 @@ def plot_curves(metrics: Path, png: Path) -> None:
     fig.savefig(tmp, dpi=90)
     plt.close(fig)
     os.replace(tmp, png)
+
+
+def heldout_eval(model: VLAModel, tok: VLATokenizer, annotations: Path, *, dataset: Path | None = None,
+                 episodes: list[int] | None = None, holdout: float = 0.1, seed: int = 0, cache: Path | None = None,
+                 samples: int = 64, device: str = "cpu") -> dict:
+    """`evaluate` on held-out episodes of an annotated dataset: ``episodes`` (e.g. a checkpoint
+    manifest's ``heldout_episodes``), else the trainer's seeded split at ``holdout``."""
+    import tempfile
+
+    from seal.annotate.loader import AnnotatedDataset
+    from seal.train.pipeline import split_episodes
+
+    ann = AnnotatedDataset(Path(annotations), Path(dataset) if dataset else None)
+    if episodes is None:
+        _, held = split_episodes(len(ann.episodes), holdout, seed)
+        episodes = [ann.episodes[i] for i in held]
+    missing = sorted(set(episodes) - set(ann.episodes))
+    if missing:
+        raise InvalidInput(f"held-out episode(s) {missing[:5]} are not annotated in {annotations}")
+    with tempfile.TemporaryDirectory() as tmp:
+        frames = build_cache(ann.source, list(episodes), Path(cache) if cache else Path(tmp) / "cache",
+                             model.cfg.image_size)
+        batcher = Batcher(frames, make_labels(frames, ann.records), tok, model.cfg)
+        out = evaluate(model, tok, batcher, _heldout_starts(frames, 0, samples), device=device)
+    return out | {"heldout_episodes": list(episodes)}

@@ -65,8 +65,9 @@ class VLAConfig:
     expert_heads: int = 4
     expert_layers: int = 3
     mlp_ratio: int = 4
+    expert_mlp_ratio: int = 4
     max_instruction_tokens: int = 32  # <bos> + instruction
-    max_reasoning_tokens: int = 96  # <think> + reasoning + <act>
+    max_reasoning_tokens: int = 112  # <think> + reasoning + <act> (LIBERO-10/90 labels: at most 94)
     horizon: int = PREDICT_HORIZON
     reasoning: bool = True  # False: the non-reasoning twin (pi0 baseline)
     text_weight: float = 0.5
@@ -158,12 +159,20 @@ class CrossAttention(nn.Module):
         return _heads(k, self.heads), _heads(v, self.heads)
 
     def forward(self, x, kv, mask):
+        b, n, d = x.shape
+        if kv[0].shape[0] == 1 and b > 1:
+            # K candidates over one shared memory: each query attends independently, so the K rows
+            # are laid end to end as one row of K*n queries against the single copy of the keys
+            # and values (no per-step copy of the memory K times over).
+            y = F.scaled_dot_product_attention(_heads(self.q(x).reshape(1, b * n, d), self.heads), kv[0], kv[1],
+                                               attn_mask=mask)
+            return self.out(_merge(y)).reshape(b, n, d)
         y = F.scaled_dot_product_attention(_heads(self.q(x), self.heads), kv[0], kv[1], attn_mask=mask)
         return self.out(_merge(y))
 
 
 def _mlp(d: int, ratio: int) -> nn.Module:
-    return nn.Sequential(nn.Linear(d, ratio * d), nn.GELU(approximate="tanh"), nn.Linear(ratio * d, d))
+    return nn.Sequential(nn.Linear(d, ratio * d), nn.GELU(), nn.Linear(ratio * d, d))
 
 
 class Block(nn.Module):
@@ -204,7 +213,7 @@ class ConvEncoder(nn.Module):
         super().__init__()
         stages, ch_in, ch = [], 3, 32
         for _ in range(int(math.log2(cfg.patch))):
-            stages += [nn.Conv2d(ch_in, ch, 3, stride=2, padding=1), nn.GroupNorm(8, ch), nn.GELU(approximate="tanh")]
+            stages += [nn.Conv2d(ch_in, ch, 3, stride=2, padding=1), nn.GroupNorm(8, ch), nn.GELU()]
             ch_in, ch = ch, min(2 * ch, 256)
         self.conv = nn.Sequential(*stages, nn.Conv2d(ch_in, cfg.d_model, 1))
         self.camera = nn.Parameter(torch.zeros(2, 1, cfg.d_model))
@@ -231,7 +240,7 @@ class ActionExpert(nn.Module):
         self.action_in = nn.Linear(ACTION_DIM, d)
         self.time_mix = nn.Sequential(nn.Linear(2 * d, d), nn.SiLU(), nn.Linear(d, d))  # pi0's action-time MLP
         self.pos = nn.Parameter(torch.randn(cfg.horizon, d) * 0.02)
-        self.blocks = nn.ModuleList(ExpertBlock(d, cfg.expert_heads, cfg.d_model, cfg.mlp_ratio)
+        self.blocks = nn.ModuleList(ExpertBlock(d, cfg.expert_heads, cfg.d_model, cfg.expert_mlp_ratio)
                                     for _ in range(cfg.expert_layers))
         self.ln = nn.LayerNorm(d)
         self.out = nn.Linear(d, ACTION_DIM)
@@ -267,35 +276,22 @@ class Prefix:
     def length(self) -> int:
         return self.hidden.shape[1]
 
-    def select(self, index: torch.Tensor) -> Prefix:
-        """Rows ``index`` of the batch (a row may repeat). Indexing copies; for K copies of one row
-        use `expand`, which does not."""
-        return Prefix([(k[index], v[index]) for k, v in self.kv], self.hidden[index], self.valid[index])
-
-    def expand(self, k: int) -> Prefix:
-        """K views of a one-row prefix (no copy)."""
-        if self.hidden.shape[0] != 1:
-            raise InvalidInput(f"expand needs a one-row prefix, got {self.hidden.shape[0]} rows")
-        ex = lambda t: t.expand(k, *t.shape[1:])
-        return Prefix([(ex(a), ex(b)) for a, b in self.kv], ex(self.hidden), ex(self.valid))
-
 
 @dataclass
 class Condition:
-    """What the action expert and the think head need for one batch of rows."""
+    """What the action expert and the think head need for a batch of rows. A condition of one row
+    serves any number of candidates: its keys/values are shared, never copied (`CrossAttention`)."""
 
     kv: list[tuple[torch.Tensor, torch.Tensor]]  # per expert block, cross-attention keys/values
     mask: torch.Tensor  # (B, 1, 1, S) bool
     think_logit: torch.Tensor | None  # (B,), None for the twin
 
-    def expand(self, k: int) -> Condition:
-        if self.mask.shape[0] != 1:
-            raise InvalidInput(f"expand needs a one-row condition, got {self.mask.shape[0]} rows")
-        ex = lambda t: t.expand(k, *t.shape[1:])
-        return Condition([(ex(a), ex(b)) for a, b in self.kv], ex(self.mask),
-                         None if self.think_logit is None else ex(self.think_logit))
+    @property
+    def rows(self) -> int:
+        return self.mask.shape[0]
 
     def select(self, index: torch.Tensor) -> Condition:
+        """Rows ``index`` (a row may repeat); copies, once per call, not per Euler step."""
         return Condition([(a[index], b[index]) for a, b in self.kv], self.mask[index],
                          None if self.think_logit is None else self.think_logit[index])
 
@@ -312,7 +308,7 @@ class VLAModel(nn.Module):
         self.blocks = nn.ModuleList(Block(d, cfg.n_heads, cfg.mlp_ratio) for _ in range(cfg.n_layers))
         self.ln = nn.LayerNorm(d)
         if cfg.reasoning:
-            self.think_head = nn.Sequential(nn.Linear(d, d), nn.GELU(approximate="tanh"), nn.Linear(d, 1))
+            self.think_head = nn.Sequential(nn.Linear(d, d), nn.GELU(), nn.Linear(d, 1))
         self.expert = ActionExpert(cfg)
         # dataset statistics (set by the trainer, saved with the weights)
         self.register_buffer("state_mean", torch.zeros(STATE_DIM))
@@ -395,6 +391,8 @@ class VLAModel(nn.Module):
         """Euler integration of the flow from noise (t = 1) to actions (t = 0); returns actions in
         the dataset's units, (B, horizon, 7)."""
         steps = steps or self.cfg.flow_steps
+        if cond.rows not in (1, noise.shape[0]):
+            raise InvalidInput(f"{noise.shape[0]} noise rows for a condition of {cond.rows} rows")
         x, dt = noise, -1.0 / steps
         t = torch.ones(noise.shape[0], device=noise.device)
         for _ in range(steps):

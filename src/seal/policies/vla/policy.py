@@ -10,8 +10,9 @@ each `Observation`; ``privileged_atoms()`` is None, so the loop never hands it a
   (policy seed, episode seed, attempt number, r), so a row's chunks do not depend on which other
   rows are still active.
 - ``act(obs_batch, reasoning, rows)``: rows that show the same observation (all K candidates at
-  the start of a round) share one prefix encode, expanded along the batch without a copy; rows
-  with their own observation (later chunks) are encoded together as one batch. Each row gets
+  the start of a round) share one prefix + reasoning encode, whose expert keys/values serve all
+  K noise draws without being copied; rows with their own observation (later chunks) are
+  encoded together as one batch. Each row gets
   a (16, 7) chunk in [-1, 1] and ``think`` from the learned head (p > 0.5).
 
 The non-reasoning twin (config ``reasoning=False``, the pi0 baseline) cannot write sub-plans and
@@ -137,14 +138,13 @@ class VLAPolicy:
         unique = list(dict.fromkeys(keys))
         cond = self.condition([obs_batch[keys.index(k)] for k in unique], reasoning)
         index = [unique.index(k) for k in keys]
-        if len(unique) == 1:
-            cond = cond.expand(len(rows))
-        elif index != list(range(len(unique))):
+        if len(unique) > 1 and index != list(range(len(unique))):
             cond = cond.select(torch.tensor(index, device=self.model.device))
+        # (one distinct observation: the one-row condition serves every row as it is)
         noise = torch.stack([torch.randn(PREDICT_HORIZON, ACTION_DIM, generator=self._gens[r]) for r in rows])
         actions = self.model.sample_actions(cond, noise.to(self.model.device)).clamp(-1.0, 1.0).cpu().numpy()
         think = ([False] * len(rows) if cond.think_logit is None
-                 else (torch.sigmoid(cond.think_logit.float()) > 0.5).cpu().tolist())
+                 else (torch.sigmoid(cond.think_logit.float()) > 0.5).expand(len(rows)).cpu().tolist())
         return [ActionChunk(actions=a.astype(np.float32), think=bool(t)) for a, t in zip(actions, think)]
 
     # -- building blocks (also used by `seal bench vla` and the trainer's evaluation) ---------------
@@ -153,8 +153,8 @@ class VLAPolicy:
         for o in obs_batch:
             if o.agent is None or o.wrist is None:
                 raise InvalidInput("the VLA needs both camera images; observe with images=True")
-        agent = resize_images(np.stack([o.agent for o in obs_batch]), size)
-        wrist = resize_images(np.stack([o.wrist for o in obs_batch]), size)
+        agent = np.stack([resize_images(o.agent, size) for o in obs_batch])  # sizes may differ per row
+        wrist = np.stack([resize_images(o.wrist, size) for o in obs_batch])
         prompts = [o.prompt or self._instruction for o in obs_batch]
         ids = [instruction_ids(self.tok, p, self.cfg.max_instruction_tokens) for p in prompts]
         return {"agent": torch.from_numpy(agent).to(dev), "wrist": torch.from_numpy(wrist).to(dev),
@@ -192,6 +192,7 @@ class VLAPolicy:
             self._ids = {text: reasoning_ids(self.tok, text, self.cfg.max_reasoning_tokens)}  # one text at a time
         ids, valid, act = self._ids[text]
         n, dev = len(obs_batch), self.model.device
+        ids, valid = ids[: act + 1], valid[: act + 1]  # no padding at inference: same result, shorter memory
         seq = self.model.extend(seq, torch.from_numpy(ids).to(dev)[None].expand(n, -1),
                                 torch.from_numpy(valid).to(dev)[None].expand(n, -1))
         return self.model.condition(seq, torch.full((n,), self.cfg.prefix_tokens + act, device=dev))
