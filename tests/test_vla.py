@@ -295,7 +295,7 @@ def test_policy_implements_the_protocol(tok, tmp_path):
         policy.act([Observation(state=np.zeros(8), prompt=INSTRUCTION)], reasoning)
 
 
-def test_twin_policy_and_missing_checkpoints(tok, tmp_path):
+def test_twin_policy_and_missing_checkpoints(tok, tmp_path, monkeypatch):
     ckpt = save_checkpoint(tmp_path / "twin", VLAModel(tiny(tok, reasoning=False)), tok)
     policy = VLAPolicy.load(ckpt, instruction=INSTRUCTION)
     policy.reset(INSTRUCTION, 0)
@@ -308,3 +308,9 @@ def test_twin_policy_and_missing_checkpoints(tok, tmp_path):
     with pytest.raises(InvalidInput, match="policy_ckpt is for the vla policy"):
         MethodSpec(policy="scripted", policy_ckpt="x")
     assert MethodSpec(policy="scripted").config_hash == MethodSpec().config_hash  # old hashes unchanged
+    from seal.policies.vla import locate
+
+    monkeypatch.setitem(locate.SHIPPED, "reason", tmp_path / "not-shipped")
+    with pytest.raises(InvalidInput, match=r"no shipped checkpoint yet .*train one with `seal train vla` or pass vla:PATH"):
+        MethodSpec(policy="vla").config_hash
+    assert MethodSpec(policy="vla:twin").policy_ckpt == "twin"
