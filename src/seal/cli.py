@@ -514,6 +514,9 @@ def _add_bench(sub) -> None:
     bench.add_argument("--ckpt", default=None, help="vla: checkpoint (default: a random-init model of the default "
                                                      "config; 'reason'/'twin': the shipped ones)")
     bench.add_argument("--annotations", default=None, help="vla: annotations for the held-out figures")
+    bench.add_argument("--size", default=None, help="vla without --ckpt: a size preset (S, M = default, L, M-p8, "
+                                                     "M-e192x3)")
+    bench.add_argument("--sizes", default=None, help="vla: also time training steps of these presets (e.g. S,M,L)")
     bench.add_argument("--dataset", default=None, help="annotate/value/vla: LeRobot dataset directory")
     bench.add_argument("--steps", type=int, default=None, help="value: training updates on --dataset (default 300)")
     bench.add_argument("--backend", default="offline", choices=["offline", "gemini", "openai"],

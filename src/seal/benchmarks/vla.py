@@ -16,6 +16,10 @@
 - ``subplan_accuracy`` / ``action_mse``: `seal.train.vla.evaluate` on held-out episodes (the
   checkpoint manifest's, else the trainer's split) when --annotations is given; else null.
 
+- ``--size NAME``: without --ckpt, time the preset ``SIZES[NAME]`` instead of the default config;
+- ``--sizes S,M,L``: ``train_grid``, one row per preset x (bf16, fp32) x (1, 2 threads) with the
+  median seconds per training step at batch 32 (how the default config was chosen).
+
 Timings are medians of ``--trials`` repetitions (default 5) with one torch thread.
 """
 
@@ -25,6 +29,50 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+
+# Candidate sizes (fields of VLAConfig that differ from its defaults); "M" is the default.
+SIZES = {
+    "S": {"d_model": 192},
+    "M": {},
+    "L": {"n_layers": 6, "d_expert": 192, "expert_layers": 3},
+    "M-p8": {"patch": 8},  # 64 image tokens per camera instead of 16
+    "M-e192x3": {"d_expert": 192, "expert_layers": 3},
+}
+
+
+def _config(name: str, vocab_size: int):
+    from seal.errors import InvalidInput
+    from seal.policies.vla.model import VLAConfig
+
+    if name not in SIZES:
+        raise InvalidInput(f"unknown VLA size {name!r}; valid: {', '.join(SIZES)}")
+    return VLAConfig(vocab_size=vocab_size, **SIZES[name])
+
+
+def train_step_s(cfg, *, batch: int, bf16: bool, threads: int, reps: int) -> float:
+    """Median seconds of one training step (forward, backward, AdamW) on a synthetic batch."""
+    import torch
+
+    from seal.policies.vla.model import VLAModel
+    from seal.train.vla import synthetic_batch
+
+    torch.set_num_threads(threads)
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(0)
+        model = VLAModel(cfg).train()
+    opt = torch.optim.AdamW(model.parameters(), lr=1e-4)
+    data = synthetic_batch(cfg, batch)
+    gen = torch.Generator().manual_seed(0)
+
+    def step():
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
+            loss, _ = model.loss(data, gen)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+
+    return round(_median_ms(step, reps) / 1000, 3)
 
 
 def _median_ms(fn, reps: int) -> float:
@@ -43,11 +91,11 @@ def run(args) -> dict:
     from seal.policies.base import Reasoning
     from seal.policies.vla.checkpoint import load_checkpoint
     from seal.policies.vla.locate import resolve_checkpoint
-    from seal.policies.vla.model import VLAConfig, VLAModel, count_parameters
+    from seal.policies.vla.model import VLAModel, count_parameters
     from seal.policies.vla.policy import VLAPolicy
     from seal.policies.vla.tokenizer import project_texts, train_tokenizer
     from seal.sim.observation import Observation
-    from seal.train.vla import TrainConfig, heldout_eval, synthetic_batch
+    from seal.train.vla import TrainConfig, heldout_eval
 
     torch.set_num_threads(1)
     reps = getattr(args, "trials", None) or 5
@@ -58,9 +106,11 @@ def run(args) -> dict:
         out |= {"weights": "checkpoint", "ckpt": str(path)}
     else:
         tok = train_tokenizer(project_texts())
-        torch.manual_seed(0)
-        model, manifest = VLAModel(VLAConfig(vocab_size=tok.vocab_size)).eval(), {}
-        out |= {"weights": "random-init"}
+        size = getattr(args, "size", None) or "M"
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(0)
+            model, manifest = VLAModel(_config(size, tok.vocab_size)).eval(), {}
+        out |= {"weights": "random-init", "size": size}
     cfg = model.cfg
     out |= {"params": count_parameters(model), "reasoning": cfg.reasoning, "image_size": cfg.image_size,
             "tokens": cfg.total_tokens}
@@ -76,7 +126,7 @@ def run(args) -> dict:
         out["prefix_ms"] = _median_ms(lambda: policy.encode([obs]), reps)
     if cfg.reasoning:
         out["reason_ms"] = _median_ms(lambda: policy.reason(obs), max(1, reps // 2))
-        out["reason_tokens"] = len(tok.encode(policy.last_text))
+        out["reason_tokens"] = policy.last_tokens
     else:
         out["reason_ms"] = None  # the twin writes no reasoning
 
@@ -94,20 +144,18 @@ def run(args) -> dict:
     out["k10_over_k1"] = round(out["sample_ms_k10"] / out["sample_ms_k1"], 3)
 
     tcfg = TrainConfig()
-    trainee = VLAModel(cfg).train()
-    opt = torch.optim.AdamW(trainee.parameters(), lr=1e-4)
-    batch = synthetic_batch(cfg, tcfg.batch_size)
-    gen = torch.Generator().manual_seed(0)
-
-    def step():
-        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=tcfg.bf16):
-            loss, _ = trainee.loss(batch, gen)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-
-    out["train_step_ms"] = _median_ms(step, max(2, reps // 2))
-    out["train_samples_per_s"] = round(tcfg.batch_size / (out["train_step_ms"] / 1000), 2)
+    step_s = train_step_s(cfg, batch=tcfg.batch_size, bf16=tcfg.bf16, threads=tcfg.threads, reps=max(2, reps // 2))
+    torch.set_num_threads(1)
+    out["train_step_ms"] = round(1000 * step_s, 1)
+    out["train_samples_per_s"] = round(tcfg.batch_size / step_s, 2)
+    if getattr(args, "sizes", None):
+        out["train_grid"] = [
+            {"size": name, **SIZES[name], "params": count_parameters(VLAModel(_config(name, tok.vocab_size))),
+             "tokens": _config(name, tok.vocab_size).total_tokens, "bf16": bf16, "threads": threads,
+             "s_per_step": train_step_s(_config(name, tok.vocab_size), batch=tcfg.batch_size, bf16=bf16,
+                                        threads=threads, reps=3)}
+            for name in args.sizes.split(",") for threads in (1, 2) for bf16 in (True, False)]
+        torch.set_num_threads(1)
     out["subplan_accuracy"] = out["action_mse"] = None
     if args.annotations:
         held = manifest.get("heldout_episodes")

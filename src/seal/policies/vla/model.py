@@ -55,15 +55,17 @@ TOKEN_BUDGET = 415  # max tokens of one sequence (the paper's Table I)
 class VLAConfig:
     """Everything that shapes the network (saved as config.json beside the weights)."""
 
+    # Defaults: chosen by measurement on this 2-core CPU (docs/performance.md, "Learned VLA"):
+    # ~9k training steps at batch 32 in about 3 hours, and 10 candidate chunks within 150 ms.
     vocab_size: int = 1024
     image_size: int = 64  # both cameras, square, uint8 RGB in openpi's orientation
-    patch: int = 8  # conv downsampling factor: (image_size / patch)^2 tokens per camera
+    patch: int = 16  # conv downsampling factor: (image_size / patch)^2 tokens per camera
     d_model: int = 256
     n_heads: int = 4
     n_layers: int = 4  # backbone (prefix + reasoning)
-    d_expert: int = 192
+    d_expert: int = 128
     expert_heads: int = 4
-    expert_layers: int = 3
+    expert_layers: int = 2
     mlp_ratio: int = 4
     expert_mlp_ratio: int = 4
     max_instruction_tokens: int = 32  # <bos> + instruction

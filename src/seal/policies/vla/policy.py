@@ -74,6 +74,7 @@ class VLAPolicy:
         self.manifest = manifest or {}
         self.seed = seed
         self.last_text = ""  # the last raw reasoning text the model wrote
+        self.last_tokens = 0  # and its length in tokens
         self._instruction = instruction  # the prompt of observations that carry none
         self._episode_seed = 0
         self._attempts = 0
@@ -180,6 +181,7 @@ class VLAPolicy:
                 break
             out.append(nxt)
             seq = model.extend(seq, torch.tensor([[nxt]], device=dev), one)
+        self.last_tokens = len(out)
         return self.tok.decode(out)
 
     def condition(self, obs_batch: Sequence[Observation], reasoning: Reasoning | None):
