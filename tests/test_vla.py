@@ -252,10 +252,14 @@ def test_train_vla_command_and_bench(annotated, tmp_path, capsys):
                                                      .items() if k != "vocab_size"}))
     assert main(["train", "vla", "--annotations", str(annotated / "ann"), "--out", str(tmp_path / "run"),
                  "--steps", "2", "--batch", "4", "--holdout", "0.34", "--no-reasoning", "--no-bf16",
-                 "--model-config", str(tmp_path / "tiny.json"), "--eval-every", "2"]) == 0
+                 "--model-config", str(tmp_path / "tiny.json"), "--eval-every", "2",
+                 "--export", str(tmp_path / "ship")]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["step"] == 2 and "action_mse" in out["heldout"] and "subplan_accuracy" not in out["heldout"]
-    assert main(["bench", "vla", "--ckpt", str(tmp_path / "run"), "--annotations", str(annotated / "ann"),
+    assert out["export"]["dtype"] == "bf16" and out["export"]["mb"] < 50
+    shipped = json.loads((tmp_path / "ship/manifest.json").read_text())
+    assert shipped["step"] == 2 and shipped["command"].startswith("seal ") and "heldout" in shipped
+    assert main(["bench", "vla", "--ckpt", str(tmp_path / "ship"), "--annotations", str(annotated / "ann"),
                  "--trials", "1"]) == 0
     bench = json.loads(capsys.readouterr().out)
     for key in ("params", "prefix_ms", "reason_ms", "sample_ms_k1", "sample_ms_k10", "sample_ms_k10_nocache",

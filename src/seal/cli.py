@@ -142,8 +142,15 @@ def _cmd_train_vla(args) -> int:
 
         summary = train_vla(Path(args.dataset) if args.dataset else None, Path(args.annotations), Path(args.out),
                             cfg, model_cfg, cache=Path(args.cache) if args.cache else None, progress=progress,
-                            command="seal " + " ".join(sys.argv[1:]))
-    print(json.dumps({k: summary[k] for k in ("run", "step", "params", "last", "heldout")}))
+                            command="seal " + " ".join(args.argv))
+    out = {k: summary[k] for k in ("run", "step", "params", "last", "heldout")}
+    if args.export:
+        from seal.policies.vla.checkpoint import export_checkpoint
+        from seal.policies.vla.locate import RUN_CHECKPOINT
+
+        manifest = export_checkpoint(Path(args.out) / RUN_CHECKPOINT, Path(args.export), dtype=args.export_dtype)
+        out["export"] = {"dir": args.export, "dtype": manifest["dtype"], "mb": round(manifest["weights_bytes"] / 1e6, 2)}
+    print(json.dumps(out))
     return 0
 
 
@@ -410,6 +417,10 @@ def _add_train(sub) -> None:
     vla.add_argument("--save-minutes", type=float, default=None, help="checkpoint interval (default 10)")
     vla.add_argument("--eval-every", type=int, default=None, help="held-out evaluation interval in steps (500)")
     vla.add_argument("--model-config", default=None, help="JSON file of VLAConfig fields to override")
+    vla.add_argument("--export", default=None, metavar="DIR",
+                     help="after training (or on a finished run), write a 16-bit copy of the checkpoint to DIR "
+                          "for shipping, e.g. src/seal/policies/vla/checkpoints/reason")
+    vla.add_argument("--export-dtype", default="bf16", choices=["bf16", "fp16", "fp32"])
     train.set_defaults(func=_cmd_train)
 
 
@@ -560,6 +571,7 @@ def main(argv: list[str] | None = None) -> int:
     import signal
 
     args = build_parser().parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)  # the command as typed (run manifests)
     signal.signal(signal.SIGTERM, _terminate)
     try:
         return args.func(args)
