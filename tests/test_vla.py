@@ -295,6 +295,12 @@ def test_policy_implements_the_protocol(tok, tmp_path):
     policy.begin(3)
     only = policy.act([obs], reasoning, rows=[2])  # a row's chunk does not depend on the other rows
     assert np.allclose(only[0].actions, again[2].actions, atol=1e-5)
+    policy.reset(INSTRUCTION, seed=7)
+    policy.begin(3)
+    policy.bf16 = True  # bf16 autocast: the same chunks up to bf16 rounding
+    half = policy.act([obs, obs, obs], reasoning)
+    policy.bf16 = False
+    assert max(np.abs(h.actions - a.actions).max() for h, a in zip(half, again)) < 0.15
     with pytest.raises(InvalidInput, match="both camera images"):
         policy.act([Observation(state=np.zeros(8), prompt=INSTRUCTION)], reasoning)
 

@@ -11,6 +11,7 @@
   chunks sampled in one batch (``flow_steps`` Euler steps);
 - ``sample_ms_k10_nocache``: the same 10 chunks as 10 independent passes (prefix, reasoning and
   sampling each time), what a policy without a shared prefix pays;
+- ``sample_ms_k1_bf16`` / ``sample_ms_k10_bf16``: the same calls with the policy's bf16 autocast on;
 - ``train_samples_per_s``: training throughput at batch 32 with the default `TrainConfig`
   (bf16 autocast, one thread), on a synthetic batch of the real shapes;
 - ``subplan_accuracy`` / ``action_mse``: `seal.train.vla.evaluate` on held-out episodes (the
@@ -20,7 +21,8 @@
 - ``--sizes S,M,L``: ``train_grid``, one row per preset x (bf16, fp32) x (1, 2 threads) with the
   median seconds per training step at batch 32 (how the default config was chosen).
 
-Timings are medians of ``--trials`` repetitions (default 5) with one torch thread.
+Timings are medians of ``--trials`` repetitions (default 5) with one torch thread; the three
+sampling figures are taken in turns within each repetition, so load changes hit them alike.
 """
 
 from __future__ import annotations
@@ -73,6 +75,19 @@ def train_step_s(cfg, *, batch: int, bf16: bool, threads: int, reps: int) -> flo
         opt.step()
 
     return round(_median_ms(step, reps) / 1000, 3)
+
+
+def _interleaved_ms(fns, reps: int) -> list[float]:
+    """Median ms of each function, the functions taking turns within every repetition."""
+    for fn in fns:
+        fn()
+    times: list[list[float]] = [[] for _ in fns]
+    for _ in range(reps):
+        for fn, t in zip(fns, times):
+            t0 = time.perf_counter()
+            fn()
+            t.append(time.perf_counter() - t0)
+    return [round(1000 * float(np.median(t)), 2) for t in times]
 
 
 def _median_ms(fn, reps: int) -> float:
@@ -138,10 +153,22 @@ def run(args) -> dict:
         policy.begin(k)
         return [policy.act([obs], reasoning, rows=[r]) for r in range(k)]
 
-    out["sample_ms_k1"] = _median_ms(lambda: act(1), reps)
-    out["sample_ms_k10"] = _median_ms(lambda: act(10), reps)
-    out["sample_ms_k10_nocache"] = _median_ms(lambda: nocache(10), max(1, reps // 2))
+    def bf16(fn):
+        def run():
+            policy.bf16 = True
+            try:
+                return fn()
+            finally:
+                policy.bf16 = False
+        return run
+
+    # interleaved, so that a load change on this shared machine hits all of them alike
+    k1, k10, k10_nocache, k1_bf16, k10_bf16 = _interleaved_ms(
+        [lambda: act(1), lambda: act(10), lambda: nocache(10), bf16(lambda: act(1)), bf16(lambda: act(10))], reps)
+    out |= {"sample_ms_k1": k1, "sample_ms_k10": k10, "sample_ms_k10_nocache": k10_nocache,
+            "sample_ms_k1_bf16": k1_bf16, "sample_ms_k10_bf16": k10_bf16}
     out["k10_over_k1"] = round(out["sample_ms_k10"] / out["sample_ms_k1"], 3)
+    out["k10_over_k1_bf16"] = round(out["sample_ms_k10_bf16"] / out["sample_ms_k1_bf16"], 3)
 
     tcfg = TrainConfig()
     step_s = train_step_s(cfg, batch=tcfg.batch_size, bf16=tcfg.bf16, threads=tcfg.threads, reps=max(2, reps // 2))

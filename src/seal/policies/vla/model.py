@@ -67,7 +67,7 @@ class VLAConfig:
     expert_heads: int = 4
     expert_layers: int = 2
     mlp_ratio: int = 4
-    expert_mlp_ratio: int = 4
+    expert_mlp_ratio: int = 2  # the expert runs K x 16 tokens x flow_steps at inference: kept lean
     max_instruction_tokens: int = 32  # <bos> + instruction
     max_reasoning_tokens: int = 112  # <think> + reasoning + <act> (LIBERO-10/90 labels: at most 94)
     horizon: int = PREDICT_HORIZON
@@ -398,7 +398,7 @@ class VLAModel(nn.Module):
         x, dt = noise, -1.0 / steps
         t = torch.ones(noise.shape[0], device=noise.device)
         for _ in range(steps):
-            x = x + dt * self.expert(x, t, cond.kv, cond.mask)
+            x = x + dt * self.expert(x, t, cond.kv, cond.mask).float()  # the sum stays fp32 under autocast
             t = t + dt
         return x * self.action_std + self.action_mean
 
