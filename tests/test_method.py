@@ -53,14 +53,14 @@ def test_registries_name_the_valid_choices():
     from seal.steer.scoring import make_scorer
     from seal.verify import make_verifier
 
-    with pytest.raises(InvalidInput, match="unknown policy 'vla'; valid: scripted, remote"):
-        make_policy("vla", MethodSpec(), None)
+    with pytest.raises(InvalidInput, match="unknown policy 'octo'; valid: scripted, remote, vla"):
+        make_policy("octo", MethodSpec(), None)
     with pytest.raises(InvalidInput, match="unknown verifier 'clip'; valid: oracle, openai, gemini, noisy"):
         make_verifier("clip")
     with pytest.raises(InvalidInput, match="unknown scorer 'q'; valid: value"):
         make_scorer("q", "x")
-    with pytest.raises(InvalidInput, match="unknown policy 'vla'; valid: scripted, remote"):
-        MethodSpec(policy="vla")
+    with pytest.raises(InvalidInput, match="unknown policy 'octo'; valid: scripted, remote, vla"):
+        MethodSpec(policy="octo")
     noisy = make_verifier("noisy", false_positive=0.5, seed=1)
     assert type(noisy).__name__ == "NoisyVerifier" and type(noisy.inner).__name__ == "OracleVerifier"
 
@@ -70,7 +70,7 @@ def test_registries_name_the_valid_choices():
     (["run", "--mismatch", "abc"], "--mismatch wants three numbers"),
     (["run", "--mismatch", "1.3,0.8"], "--mismatch wants three numbers"),
     (["run", "--k", "x"], "argument --k: invalid int value"),
-    (["run", "--policy", "vla"], "unknown policy 'vla'"),
+    (["run", "--policy", "octo"], "unknown policy 'octo'"),
     (["run", "--method", "value"], "needs a trained V-GPS checkpoint"),
     (["eval", "--db", "{db}", "--tasks", "0,x"], "--tasks must be comma-separated task ids"),
     (["eval", "--db", "{db}", "--tasks", "0,10"], "unknown task id 10"),

@@ -79,6 +79,8 @@ def _cmd_demos(args) -> int:
 def _cmd_train(args) -> int:
     if args.what == "verifier":
         return _cmd_train_verifier(args)
+    if args.what == "vla":
+        return _cmd_train_vla(args)
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
@@ -87,8 +89,8 @@ def _cmd_train(args) -> int:
 
     if not args.dataset:
         raise InvalidInput("seal train value needs --dataset (a LeRobot dataset)")
-    cfg = IQLConfig(steps=args.steps or 3000, batch_size=args.batch_size or 128, lr=args.lr or 3e-4,
-                    gamma=args.gamma, expectile=args.expectile, seed=args.seed)
+    cfg = IQLConfig(steps=args.steps or 3000, batch_size=args.batch_size or 128, lr=args.lr or 3e-4, gamma=args.gamma,
+                    expectile=args.expectile, seed=0 if args.seed is None else args.seed)
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TextColumn("{task.fields[info]}"), TimeRemainingColumn(), console=Console(stderr=True)) as bar:
         jobs: dict = {}
@@ -101,7 +103,8 @@ def _cmd_train(args) -> int:
             bar.update(jobs[stage], completed=done, total=total, info=info)
 
         summary = train_value_on_dataset(Path(args.dataset), Path(args.out), goals=args.goals,
-                                         holdout=args.holdout, cfg=cfg, progress=progress)
+                                         holdout=0.2 if args.holdout is None else args.holdout, cfg=cfg,
+                                         progress=progress)
     print(json.dumps({k: summary[k] for k in ("train_transitions", "last", "heldout", "train_fit") if k in summary}))
     return 0
 
@@ -143,7 +146,7 @@ def _cmd_train_verifier(args) -> int:
     holdout = tuple(t.strip() for t in (args.holdout_tasks or "").split(",") if t.strip())
     cfg = VerifierTrainConfig(steps=args.steps or 2000, batch_size=args.batch_size or 64, lr=args.lr or 1e-3,
                               image_size=args.image_size, holdout_tasks=holdout, holdout_inits=args.holdout_inits,
-                              seed=args.seed, save_every_s=args.save_every_min * 60.0)
+                              seed=0 if args.seed is None else args.seed, save_every_s=args.save_every_min * 60.0)
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TextColumn("{task.fields[info]}"), TimeRemainingColumn(), console=Console(stderr=True)) as bar:
         jobs: dict = {}
@@ -157,6 +160,56 @@ def _cmd_train_verifier(args) -> int:
     keys = ("step", "split", "heldout_inits", "heldout_tasks")
     print(json.dumps({k: ({m: v for m, v in summary[k].items() if m != "per_kind"} if isinstance(summary[k], dict)
                           and "per_kind" in summary[k] else summary[k]) for k in keys}))
+    return 0
+
+
+def _cmd_train_vla(args) -> int:
+    from dataclasses import replace
+
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from seal.policies.vla.model import VLAConfig
+    from seal.train.vla import TrainConfig, train_vla
+
+    if not args.annotations:
+        raise InvalidInput("seal train vla needs --annotations (a `seal annotate` output directory)")
+    given = {"steps": args.steps, "batch_size": args.batch_size, "lr": args.lr, "holdout": args.holdout,
+             "device": args.device, "threads": args.threads, "save_minutes": args.save_minutes,
+             "eval_every": args.eval_every, "bf16": args.bf16, "seed": args.seed}
+    cfg = replace(TrainConfig(), **{k: v for k, v in given.items() if v is not None})
+    model_cfg = VLAConfig()
+    if args.model_config:
+        try:
+            model_cfg = VLAConfig.from_dict({**model_cfg.to_dict(), **json.loads(Path(args.model_config).read_text())})
+        except (OSError, json.JSONDecodeError, TypeError) as exc:
+            raise InvalidInput(f"--model-config {args.model_config}: {exc}") from None
+    if args.no_reasoning:
+        model_cfg = replace(model_cfg, reasoning=False)
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                  TextColumn("{task.fields[info]}"), TimeRemainingColumn(), console=Console(stderr=True)) as bar:
+        jobs: dict = {}
+
+        def progress(stage, done, total, metrics=None):
+            if stage not in jobs:
+                jobs[stage] = bar.add_task("decoding episodes" if stage == "cache" else "training", total=total,
+                                           info="")
+            info = ""
+            if metrics:
+                info = f"loss {metrics['loss']:.4f}  {metrics['samples_per_s']:.1f} samples/s"
+            bar.update(jobs[stage], completed=done, total=total, info=info)
+
+        summary = train_vla(Path(args.dataset) if args.dataset else None, Path(args.annotations), Path(args.out),
+                            cfg, model_cfg, cache=Path(args.cache) if args.cache else None, progress=progress,
+                            command="seal " + " ".join(args.argv))
+    out = {k: summary[k] for k in ("run", "step", "params", "last", "heldout")}
+    if args.export:
+        from seal.policies.vla.checkpoint import export_checkpoint
+        from seal.policies.vla.locate import RUN_CHECKPOINT
+
+        manifest = export_checkpoint(Path(args.out) / RUN_CHECKPOINT, Path(args.export), dtype=args.export_dtype)
+        out["export"] = {"dir": args.export, "dtype": manifest["dtype"], "mb": round(manifest["weights_bytes"] / 1e6, 2)}
+    print(json.dumps(out))
     return 0
 
 
@@ -323,7 +376,8 @@ _METHOD_OPTIONS = (
     ("--false-negative", float, "noisy verifier: false-negative rate"),
     ("--value-ckpt", str, "value: checkpoint file or run directory (`seal train value`)"),
     ("--value-goal", str, "value: condition the Q-function on the task (V-GPS, default) or the sub-plan"),
-    ("--policy", str, "scripted (default) | remote: an openpi-protocol server at --host/--port (docs/serving.md)"),
+    ("--policy", str, "scripted (default) | remote: an openpi-protocol server at --host/--port (docs/serving.md) | "
+                      "vla[:PATH]: a learned VLA checkpoint (default: the shipped one; vla:twin for its twin)"),
     ("--knobs", str, "scripted expert's failure setting: clean | misaligned (default)"),
     ("--host", str, "remote policy server host (or a ws:// URI; default 127.0.0.1)"),
     ("--port", int, "remote policy server port (default 8000)"),
@@ -402,31 +456,48 @@ def _add_demos(sub) -> None:
 
 
 def _add_train(sub) -> None:
-    train = sub.add_parser("train", help="learned models; `value`: the V-GPS baseline's IQL Q-function; "
-                           "`verifier`: the learned verifier (docs/verifier.md)")
-    train.add_argument("what", choices=["value", "verifier"])
+    train = sub.add_parser("train", help="learned models: `value` (the V-GPS baseline's IQL Q-function), `vla` "
+                                         "(the reasoning VLA or, with --no-reasoning, its pi0 twin), `verifier` "
+                                         "(the learned verifier, docs/verifier.md)")
+    train.add_argument("what", choices=["value", "vla", "verifier"])
     train.add_argument("--dataset", default=None,
-                       help="value: LeRobot dataset (e.g. from `seal demos record --keep-failures`)")
-    train.add_argument("--data", default=None, help="verifier: `seal verify collect` directory")
-    train.add_argument("--out", required=True, help="run directory (value: checkpoint.pt, metrics.jsonl, "
-                       "summary.json; verifier: model.safetensors, config.json, train_state.pt, metrics)")
-    train.add_argument("--holdout-tasks", default="",
-                       help="verifier: comma-separated task keys (libero_10/1,...) never trained on")
-    train.add_argument("--holdout-inits", type=float, default=0.2,
-                       help="verifier: fraction of each other task's init states held out")
-    train.add_argument("--image-size", type=int, default=96, help="verifier: model input size in pixels")
-    train.add_argument("--save-every-min", type=float, default=5.0, help="verifier: minutes between checkpoints")
-    train.add_argument("--threads", type=int, default=None, help="verifier: torch threads (default 1)")
-    train.add_argument("--goals", default="both", choices=["task", "subplan", "both"],
+                       help="LeRobot dataset (value: required; vla: default the one the annotations name)")
+    train.add_argument("--out", required=True, help="run directory (re-running continues from its checkpoint)")
+    train.add_argument("--steps", type=int, default=None, help="gradient updates (value 3000, vla 9000, verifier 2000)")
+    train.add_argument("--batch-size", "--batch", dest="batch_size", type=int, default=None,
+                       help="value 128, vla 32, verifier 64")
+    train.add_argument("--lr", type=float, default=None, help="value 3e-4, vla 3e-4 (cosine decay), verifier 1e-3")
+    train.add_argument("--holdout", type=float, default=None,
+                       help="fraction of episodes held out for the check (value 0.2, vla 0.1)")
+    train.add_argument("--seed", type=int, default=None)
+    train.add_argument("--threads", type=int, default=None, help="vla/verifier: torch threads (default 1)")
+    value = train.add_argument_group("value")
+    value.add_argument("--goals", default="both", choices=["task", "subplan", "both"],
                        help="goal texts to condition on: the task instruction, each sub-plan, or both")
-    train.add_argument("--steps", type=int, default=None,
-                       help="gradient updates, re-running continues to this (value 3000, verifier 2000)")
-    train.add_argument("--batch-size", type=int, default=None, help="value 128, verifier 64")
-    train.add_argument("--lr", type=float, default=None, help="value 3e-4, verifier 1e-3")
-    train.add_argument("--gamma", type=float, default=0.9, help="discount per 5-step chunk")
-    train.add_argument("--expectile", type=float, default=0.7, help="IQL's tau")
-    train.add_argument("--holdout", type=float, default=0.2, help="fraction of episodes held out for the check")
-    train.add_argument("--seed", type=int, default=0)
+    value.add_argument("--gamma", type=float, default=0.9, help="discount per 5-step chunk")
+    value.add_argument("--expectile", type=float, default=0.7, help="IQL's tau")
+    vla = train.add_argument_group("vla")
+    vla.add_argument("--annotations", default=None, help="`seal annotate` output directory (reasoning labels)")
+    vla.add_argument("--no-reasoning", action="store_true", help="train the non-reasoning twin (pi0 baseline)")
+    vla.add_argument("--device", default=None, help="cpu (default) | cuda")
+    vla.add_argument("--cache", default=None, help="frame cache directory (default RUN/cache; reusable across runs)")
+    vla.add_argument("--bf16", action=argparse.BooleanOptionalAction, default=None,
+                     help="bf16 autocast (default on; docs/performance.md)")
+    vla.add_argument("--save-minutes", type=float, default=None, help="checkpoint interval (default 10)")
+    vla.add_argument("--eval-every", type=int, default=None, help="held-out evaluation interval in steps (500)")
+    vla.add_argument("--model-config", default=None, help="JSON file of VLAConfig fields to override")
+    vla.add_argument("--export", default=None, metavar="DIR",
+                     help="after training (or on a finished run), write a 16-bit copy of the checkpoint to DIR "
+                          "for shipping, e.g. src/seal/policies/vla/checkpoints/reason")
+    vla.add_argument("--export-dtype", default="bf16", choices=["bf16", "fp16", "fp32"])
+    ver = train.add_argument_group("verifier")
+    ver.add_argument("--data", default=None, help="`seal verify collect` directory")
+    ver.add_argument("--holdout-tasks", default="",
+                     help="comma-separated task keys (libero_10/1,...) never trained on")
+    ver.add_argument("--holdout-inits", type=float, default=0.2,
+                     help="fraction of each other task's init states held out")
+    ver.add_argument("--image-size", type=int, default=96, help="model input size in pixels")
+    ver.add_argument("--save-every-min", type=float, default=5.0, help="minutes between checkpoints")
     train.set_defaults(func=_cmd_train)
 
 
@@ -559,8 +630,14 @@ def _add_annotate(sub) -> None:
 def _add_bench(sub) -> None:
     bench = sub.add_parser("bench", help="benchmarks; each prints one JSON object")
     bench.add_argument("what", choices=["sim", "expert", "steer", "runtime", "eval", "serve", "annotate",
-                                                       "value", "verifier", "verifier-sweep"])
-    bench.add_argument("--dataset", default=None, help="annotate/value: LeRobot dataset directory")
+                                                       "value", "verifier", "verifier-sweep", "vla"])
+    bench.add_argument("--ckpt", default=None, help="vla: checkpoint (default: a random-init model of the default "
+                                                     "config; 'reason'/'twin': the shipped ones)")
+    bench.add_argument("--annotations", default=None, help="vla: annotations for the held-out figures")
+    bench.add_argument("--size", default=None, help="vla without --ckpt: a size preset (S, M = default, L, M-p8, "
+                                                     "M-e192x3)")
+    bench.add_argument("--sizes", default=None, help="vla: also time training steps of these presets (e.g. S,M,L)")
+    bench.add_argument("--dataset", default=None, help="annotate/value/vla: LeRobot dataset directory")
     bench.add_argument("--steps", type=int, default=None, help="value: training updates on --dataset (default 300)")
     bench.add_argument("--backend", default="offline", choices=["offline", "gemini", "openai"],
                        help="annotate: annotation backend")
@@ -627,6 +704,7 @@ def main(argv: list[str] | None = None) -> int:
     import signal
 
     args = build_parser().parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)  # the command as typed (run manifests)
     signal.signal(signal.SIGTERM, _terminate)
     try:
         return args.func(args)

@@ -15,7 +15,8 @@ BENCHMARKS = {"sim": "seal.benchmarks.sim:run", "expert": "seal.benchmarks.exper
               "annotate": "seal.benchmarks.annotate:run",
               "value": "seal.benchmarks.value:run",
               "verifier": "seal.benchmarks.verifier:run",
-              "verifier-sweep": "seal.benchmarks.sweep:run"}
+              "verifier-sweep": "seal.benchmarks.sweep:run",
+              "vla": "seal.benchmarks.vla:run"}
 
 
 # `--trials` when not given, per benchmark (what it counts differs: init states per task, trials of

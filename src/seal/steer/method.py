@@ -9,7 +9,9 @@ Its canonical form (what changes results) is hashed to name the method in a resu
 hash must stay what older stores hold, so the rule for a field added later is: it enters the
 canonical form only when it differs from its default (an old configuration, which could only
 have the default, hashes as before). Connection details (host, port, URLs, timeouts, transport)
-never enter it: they say where a model runs, not what it is.
+never enter it: they say where a model runs, not what it is. A learned policy's checkpoint
+(``policy_ckpt``, also written ``policy="vla:PATH"``) enters it as the digest of its weights, as
+``value_ckpt`` does, so retraining in place is a new method.
 """
 
 from __future__ import annotations
@@ -32,7 +34,8 @@ PROMPTS = ("task", "subplan")
 TRANSPORTS = ("auto", "batched", "concurrent", "sequential")
 
 # Fields added after stores existed: in the canonical form only when not at their default.
-_LATER = ("mismatch", "check_every", "subplan_budget", "planner", "annotations", "planner_model", "prompt")
+_LATER = ("mismatch", "check_every", "subplan_budget", "planner", "annotations", "planner_model", "prompt",
+          "policy_ckpt")
 _NO_HASH = {"hash": False}  # where a model runs, not what it is
 
 
@@ -61,6 +64,7 @@ class MethodSpec:
     annotations: str | None = None  # annotations planner: JSON file or LeRobot dataset dir
     planner_model: str | None = None  # vlm planner
     prompt: str = "task"  # remote policy without reasoning: prompt with the task or the sub-plan
+    policy_ckpt: str = ""  # vla only: checkpoint dir, or shipped 'reason' (default) / 'twin'; also `policy=vla:PATH`
     # -- connection details, never hashed --
     base_url: str | None = field(default=None, metadata=_NO_HASH)  # OpenAI-compatible VLM server
     host: str = field(default="127.0.0.1", metadata=_NO_HASH)  # remote policy server
@@ -76,6 +80,13 @@ class MethodSpec:
             name, path = split_name(self.verifier, self.model)
             object.__setattr__(self, "verifier", name)
             object.__setattr__(self, "model", path)
+        if ":" in self.policy:  # `--policy vla:PATH`: the name, and the checkpoint as its own field
+            name, _, ckpt = self.policy.partition(":")
+            if self.policy_ckpt and self.policy_ckpt != ckpt:
+                raise InvalidInput(f"policy {self.policy!r} names a checkpoint and policy_ckpt={self.policy_ckpt!r} "
+                                   "another; give one")
+            object.__setattr__(self, "policy", name)
+            object.__setattr__(self, "policy_ckpt", ckpt)
         _one_of("method", self.method, METHODS)
         _one_of("verifier", self.verifier, VERIFIERS)
         _one_of("policy", self.policy, POLICIES)
@@ -86,6 +97,8 @@ class MethodSpec:
         _one_of("planner", self.planner, PLANNERS)
         _one_of("prompt", self.prompt, PROMPTS)
         _one_of("transport", self.transport, TRANSPORTS)
+        if self.policy_ckpt and self.policy != "vla":
+            raise InvalidInput(f"policy_ckpt is for the vla policy, not {self.policy!r}")
         if self.method == "value" and not self.value_ckpt:
             raise InvalidInput("method 'value' needs a trained V-GPS checkpoint: value:value_ckpt=RUN_DIR "
                                "(train one with `seal train value`)")
@@ -153,6 +166,10 @@ class MethodSpec:
             d.pop("value_goal")
         else:  # the weights, not the path, decide the results: retraining in place is a new method
             d["value_ckpt"] = checkpoint_digest(self.value_ckpt)
+        if self.policy == "vla":  # the weights, not the path, decide the results (as for value_ckpt)
+            from seal.policies.vla.locate import checkpoint_digest
+
+            d["policy_ckpt"] = checkpoint_digest(self.policy_ckpt)
         if self.policy != "scripted":  # the expert's failure setting means nothing to another policy
             d.pop("knobs")
         else:

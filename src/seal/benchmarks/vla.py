@@ -1,0 +1,197 @@
+"""`seal bench vla`: what the learned VLA costs, and (with --annotations) how good it is.
+
+- ``params``: parameter count; ``weights``: "checkpoint" or "random-init" (no --ckpt: a fresh
+  model of the default `VLAConfig`, so the costs are real and the quality figures are null);
+- ``prefix_ms``: one prefix encode (two 64-px images, state, instruction), batch 1;
+- ``reason_ms``: one reasoning text, ``reason(obs)``: prefix + greedy decoding with the KV cache
+  (``reason_tokens`` says how long the text was; a random-init model never closes with <act>,
+  so it decodes the full ``max_reasoning_tokens``: the worst case);
+- ``sample_ms_k1`` / ``sample_ms_k10``: one ``act`` call for 1 / 10 rows that show the same
+  observation: one prefix + reasoning encode, its expert keys/values expanded to K rows, and K
+  chunks sampled in one batch (``flow_steps`` Euler steps);
+- ``sample_ms_k10_nocache``: the same 10 chunks as 10 independent passes (prefix, reasoning and
+  sampling each time), what a policy without a shared prefix pays;
+- ``sample_ms_k1_bf16`` / ``sample_ms_k10_bf16``: the same calls with the policy's bf16 autocast on;
+- ``train_samples_per_s``: training throughput at batch 32 with the default `TrainConfig`
+  (bf16 autocast, one thread), on a synthetic batch of the real shapes;
+- ``subplan_accuracy`` / ``action_mse``: `seal.train.vla.evaluate` on held-out episodes (the
+  checkpoint manifest's, else the trainer's split) when --annotations is given; else null.
+
+- ``--size NAME``: without --ckpt, time the preset ``SIZES[NAME]`` instead of the default config;
+- ``--sizes S,M,L``: ``train_grid``, one row per preset x (bf16, fp32) x (1, 2 threads) with the
+  median seconds per training step at batch 32 (how the default config was chosen).
+
+Timings are medians of ``--trials`` repetitions (default 5) with one torch thread; the three
+sampling figures are taken in turns within each repetition, so load changes hit them alike.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+# Candidate sizes (fields of VLAConfig that differ from its defaults); "M" is the default.
+SIZES = {
+    "S": {"d_model": 192},
+    "M": {},
+    "L": {"n_layers": 6, "d_expert": 192, "expert_layers": 3},
+    "M-p8": {"patch": 8},  # 64 image tokens per camera instead of 16
+    "M-e192x3": {"d_expert": 192, "expert_layers": 3},
+}
+
+
+def _config(name: str, vocab_size: int):
+    from seal.errors import InvalidInput
+    from seal.policies.vla.model import VLAConfig
+
+    if name not in SIZES:
+        raise InvalidInput(f"unknown VLA size {name!r}; valid: {', '.join(SIZES)}")
+    return VLAConfig(vocab_size=vocab_size, **SIZES[name])
+
+
+def train_step_s(cfg, *, batch: int, bf16: bool, threads: int, reps: int) -> float:
+    """Median seconds of one training step (forward, backward, AdamW) on a synthetic batch."""
+    import torch
+
+    from seal.policies.vla.model import VLAModel
+    from seal.train.vla import synthetic_batch
+
+    torch.set_num_threads(threads)
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(0)
+        model = VLAModel(cfg).train()
+    opt = torch.optim.AdamW(model.parameters(), lr=1e-4)
+    data = synthetic_batch(cfg, batch)
+    gen = torch.Generator().manual_seed(0)
+
+    def step():
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
+            loss, _ = model.loss(data, gen)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+
+    return round(_median_ms(step, reps) / 1000, 3)
+
+
+def _interleaved_ms(fns, reps: int) -> list[float]:
+    """Median ms of each function, the functions taking turns within every repetition."""
+    for fn in fns:
+        fn()
+    times: list[list[float]] = [[] for _ in fns]
+    for _ in range(reps):
+        for fn, t in zip(fns, times):
+            t0 = time.perf_counter()
+            fn()
+            t.append(time.perf_counter() - t0)
+    return [round(1000 * float(np.median(t)), 2) for t in times]
+
+
+def _median_ms(fn, reps: int) -> float:
+    fn()  # warm-up (allocator, lazy init)
+    times = []
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return round(1000 * float(np.median(times)), 2)
+
+
+def run(args) -> dict:
+    import torch
+
+    from seal.policies.base import Reasoning
+    from seal.policies.vla.checkpoint import load_checkpoint
+    from seal.policies.vla.locate import resolve_checkpoint
+    from seal.policies.vla.model import VLAModel, count_parameters
+    from seal.policies.vla.policy import VLAPolicy
+    from seal.policies.vla.tokenizer import project_texts, train_tokenizer
+    from seal.sim.observation import Observation
+    from seal.train.vla import TrainConfig, heldout_eval
+
+    torch.set_num_threads(1)
+    reps = getattr(args, "trials", None) or 5
+    out: dict = {}
+    if args.ckpt:
+        path = resolve_checkpoint(args.ckpt)
+        model, tok, manifest = load_checkpoint(path)
+        out |= {"weights": "checkpoint", "ckpt": str(path)}
+    else:
+        tok = train_tokenizer(project_texts())
+        size = getattr(args, "size", None) or "M"
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(0)
+            model, manifest = VLAModel(_config(size, tok.vocab_size)).eval(), {}
+        out |= {"weights": "random-init", "size": size}
+    cfg = model.cfg
+    out |= {"params": count_parameters(model), "reasoning": cfg.reasoning, "image_size": cfg.image_size,
+            "tokens": cfg.total_tokens}
+    instruction = "put both the alphabet soup and the tomato sauce in the basket"
+    plans = ("pick up the alphabet soup", "place it in the basket", "pick up the tomato sauce", "place it in the basket")
+    reasoning = Reasoning(plans=plans, done=plans[:1], now=plans[1])
+    rng = np.random.default_rng(0)
+    image = lambda: rng.integers(0, 256, (cfg.image_size, cfg.image_size, 3), dtype=np.uint8)
+    obs = Observation(state=rng.normal(size=8), prompt=instruction, agent=image(), wrist=image())
+    policy = VLAPolicy(model, tok, instruction=instruction)
+    policy.reset(instruction, 0)
+    with torch.inference_mode():
+        out["prefix_ms"] = _median_ms(lambda: policy.encode([obs]), reps)
+    if cfg.reasoning:
+        out["reason_ms"] = _median_ms(lambda: policy.reason(obs), max(1, reps // 2))
+        out["reason_tokens"] = policy.last_tokens
+    else:
+        out["reason_ms"] = None  # the twin writes no reasoning
+
+    def act(k: int):
+        policy.begin(k)
+        return policy.act([obs] * k, reasoning)
+
+    def nocache(k: int):
+        policy.begin(k)
+        return [policy.act([obs], reasoning, rows=[r]) for r in range(k)]
+
+    def bf16(fn):
+        def run():
+            policy.bf16 = True
+            try:
+                return fn()
+            finally:
+                policy.bf16 = False
+        return run
+
+    # interleaved, so that a load change on this shared machine hits all of them alike
+    k1, k10, k10_nocache, k1_bf16, k10_bf16 = _interleaved_ms(
+        [lambda: act(1), lambda: act(10), lambda: nocache(10), bf16(lambda: act(1)), bf16(lambda: act(10))], reps)
+    out |= {"sample_ms_k1": k1, "sample_ms_k10": k10, "sample_ms_k10_nocache": k10_nocache,
+            "sample_ms_k1_bf16": k1_bf16, "sample_ms_k10_bf16": k10_bf16}
+    out["k10_over_k1"] = round(out["sample_ms_k10"] / out["sample_ms_k1"], 3)
+    out["k10_over_k1_bf16"] = round(out["sample_ms_k10_bf16"] / out["sample_ms_k1_bf16"], 3)
+
+    tcfg = TrainConfig()
+    step_s = train_step_s(cfg, batch=tcfg.batch_size, bf16=tcfg.bf16, threads=tcfg.threads, reps=max(2, reps // 2))
+    torch.set_num_threads(1)
+    out["train_step_ms"] = round(1000 * step_s, 1)
+    out["train_samples_per_s"] = round(tcfg.batch_size / step_s, 2)
+    if getattr(args, "sizes", None):
+        out["train_grid"] = [
+            {"size": name, **SIZES[name], "params": count_parameters(VLAModel(_config(name, tok.vocab_size))),
+             "tokens": _config(name, tok.vocab_size).total_tokens, "bf16": bf16, "threads": threads,
+             "s_per_step": train_step_s(_config(name, tok.vocab_size), batch=tcfg.batch_size, bf16=bf16,
+                                        threads=threads, reps=3)}
+            for name in args.sizes.split(",") for threads in (1, 2) for bf16 in (True, False)]
+        torch.set_num_threads(1)
+    out["subplan_accuracy"] = out["action_mse"] = None
+    if args.annotations:
+        held = manifest.get("heldout_episodes")
+        figures = heldout_eval(model, tok, Path(args.annotations), dataset=Path(args.dataset) if args.dataset else None,
+                               episodes=held)
+        out["subplan_accuracy"] = figures.get("subplan_accuracy")
+        out["action_mse"] = figures["action_mse"]
+        out["heldout"] = {"episodes": len(figures["heldout_episodes"]), "chunks": figures["eval_chunks"],
+                          "split": "checkpoint manifest" if held else "trainer's seeded split"}
+    else:
+        out["heldout"] = "no --annotations given: subplan_accuracy and action_mse are null"
+    return out

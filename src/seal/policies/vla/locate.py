@@ -1,0 +1,51 @@
+"""Where a VLA checkpoint is, and what identifies its weights; no torch needed (the method
+description hashes a checkpoint without loading a model).
+
+``vla`` alone means the shipped reasoning model; ``vla:twin`` and ``vla:reason`` name the two
+shipped checkpoints; anything else after the colon is a checkpoint directory (a `seal train vla`
+run directory holds one in ``checkpoint/``, which is used when given the run directory).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from seal.errors import InvalidInput
+
+SHIPPED_DIR = Path(__file__).resolve().parent / "checkpoints"
+SHIPPED = {"reason": SHIPPED_DIR / "reason", "twin": SHIPPED_DIR / "twin"}
+MANIFEST = "manifest.json"
+RUN_CHECKPOINT = "checkpoint"  # inside a `seal train vla` run directory
+
+
+def resolve_checkpoint(spec: str = "") -> Path:
+    """'' or 'reason' or 'twin' (shipped) or a directory -> the checkpoint directory."""
+    spec = (spec or "reason").strip()
+    if spec in SHIPPED:
+        path = SHIPPED[spec]
+        if not (path / MANIFEST).is_file():
+            raise InvalidInput(f"no shipped checkpoint yet at {path}; train one with `seal train vla` "
+                               f"or pass vla:PATH")
+        return path
+    path = Path(spec).expanduser()
+    if (path / RUN_CHECKPOINT / MANIFEST).is_file():
+        return path / RUN_CHECKPOINT
+    if not (path / MANIFEST).is_file():
+        raise InvalidInput(f"no VLA checkpoint at {path} (no {MANIFEST}); train one with `seal train vla` "
+                           f"or pass vla:PATH with a checkpoint directory")
+    return path
+
+
+def checkpoint_digest(spec: str = "") -> str:
+    """What identifies the weights: the sha256 the manifest records for them (checked against the
+    file when the checkpoint is loaded), so retraining in place is a new method in a store."""
+    path = resolve_checkpoint(spec)
+    try:
+        manifest = json.loads((path / MANIFEST).read_text())
+    except json.JSONDecodeError as exc:
+        raise InvalidInput(f"{path / MANIFEST} is not valid JSON ({exc})") from None
+    sha = manifest.get("weights_sha256")
+    if not isinstance(sha, str) or not sha:
+        raise InvalidInput(f"{path / MANIFEST} records no weights_sha256")
+    return sha[:12]

@@ -1,0 +1,326 @@
+"""The learned VLA: tokenizer, network, flow matching, KV-cache sampling, checkpoints, exact
+resume of training, the policy seam and `seal bench vla`. Tiny models, one thread."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import torch
+from _annotate_data import make_v21
+
+from seal.annotate.backends import make_annotator
+from seal.annotate.pipeline import annotate_dataset
+from seal.cli import main
+from seal.errors import InvalidInput
+from seal.policies import make_policy
+from seal.policies.base import Reasoning
+from seal.policies.vla.checkpoint import export_checkpoint, load_checkpoint, save_checkpoint
+from seal.policies.vla.model import VLAConfig, VLAModel
+from seal.policies.vla.policy import VLAPolicy
+from seal.policies.vla.tokenizer import SPECIALS, VLATokenizer, project_texts, train_tokenizer
+from seal.serving.protocol import parse_reasoning
+from seal.sim.observation import Observation
+from seal.steer.method import MethodSpec
+from seal.train.vla import TrainConfig, synthetic_batch, train_vla
+
+torch.set_num_threads(1)
+
+PLANS = ("pick up the black bowl", "place it on the plate", "pick up the mug", "place it on the plate")
+INSTRUCTION = "put the bowl and the mug on the plate"
+
+
+@pytest.fixture(scope="module")
+def tok() -> VLATokenizer:
+    labels = [Reasoning(PLANS, PLANS[:i], PLANS[i] if i < 4 else "").text() for i in range(5)]
+    return train_tokenizer(project_texts() + labels + [INSTRUCTION], vocab_size=400)
+
+
+def tiny(tok: VLATokenizer, **kw) -> VLAConfig:
+    base = dict(vocab_size=tok.vocab_size, image_size=32, patch=8, d_model=32, n_heads=2, n_layers=2, d_expert=32,
+                expert_heads=2, expert_layers=2, mlp_ratio=2, max_instruction_tokens=16, max_reasoning_tokens=112)
+    return VLAConfig(**{**base, **kw})
+
+
+def obs_at(size: int, seed: int = 0) -> Observation:
+    rng = np.random.default_rng(seed)
+    return Observation(state=rng.normal(size=8), prompt=INSTRUCTION,
+                       agent=rng.integers(0, 256, (size, size, 3), dtype=np.uint8),
+                       wrist=rng.integers(0, 256, (size, size, 3), dtype=np.uint8))
+
+
+# ---------------------------------------------------------------------------------------- tokenizer
+
+
+def test_tokenizer_round_trips_and_keeps_its_special_ids(tok):
+    text = Reasoning(PLANS, PLANS[:2], PLANS[2]).text()
+    ids = tok.encode(text)
+    assert tok.decode(ids) == text and len(ids) < len(text) / 3  # domain words are whole tokens
+    assert [tok.pad_id, tok.bos_id, tok.eos_id, tok.think_id, tok.act_id, tok.unk_id] == list(range(len(SPECIALS)))
+    odd = "wipe the ZEBRA-striped mug, then stop!"  # unseen words fall back to byte pieces
+    assert tok.decode(tok.encode(odd)) == odd and tok.unk_id not in tok.encode(odd)
+    again = VLATokenizer.from_json(tok.to_json())
+    assert again.encode(text) == ids and again.vocab_size == tok.vocab_size
+    assert train_tokenizer(reversed(project_texts() + [text, INSTRUCTION]), 400).to_json() == \
+        train_tokenizer(project_texts() + [INSTRUCTION, text], 400).to_json()  # deterministic
+    with pytest.raises(InvalidInput, match="not a valid tokenizer"):
+        VLATokenizer.from_json("{}")
+
+
+# ---------------------------------------------------------------------------------------- network
+
+
+def test_forward_backward_shapes_and_budget(tok):
+    torch.manual_seed(0)
+    cfg = tiny(tok)
+    model = VLAModel(cfg)
+    batch = synthetic_batch(cfg, 3)
+    loss, metrics = model.loss(batch, torch.Generator().manual_seed(0))
+    loss.backward()
+    assert set(metrics) == {"text", "think", "action", "loss"}
+    no_grad = [n for n, p in model.named_parameters() if p.grad is None or not p.grad.abs().sum() > 0]
+    assert no_grad == []
+    prefix = model.encode_prefix(batch["agent"], batch["wrist"], batch["state"], batch["instr_ids"], batch["instr_valid"])
+    assert prefix.hidden.shape == (3, cfg.prefix_tokens, cfg.d_model)
+    chunk = model.sample_actions(model.condition(prefix), torch.randn(3, 16, 7))
+    assert chunk.shape == (3, 16, 7)
+    with pytest.raises(InvalidInput, match="415-token budget"):
+        replace(cfg, image_size=128, max_reasoning_tokens=200)
+
+
+def test_flow_matching_overfits_a_tiny_batch(tok):
+    torch.manual_seed(0)
+    cfg = tiny(tok, reasoning=False)
+    model = VLAModel(cfg)
+    batch = synthetic_batch(cfg, 4, seed=1)
+    # one action per sample held over its chunk (real chunks are smooth, random ones need far more steps)
+    batch["actions"] = (torch.rand(4, 1, 7, generator=torch.Generator().manual_seed(2)) * 2 - 1).expand(4, 16, 7)
+    fixed = lambda: float(model.loss(batch, torch.Generator().manual_seed(123))[1]["action"])  # same noise and t
+    opt = torch.optim.Adam(model.parameters(), lr=3e-3)
+    gen = torch.Generator().manual_seed(0)
+    before = fixed()
+    for _ in range(200):
+        loss, _ = model.loss(batch, gen)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    assert fixed() < 0.5 * before
+
+
+def test_kv_cache_paths_equal_full_passes(tok):
+    torch.manual_seed(0)
+    cfg = tiny(tok)
+    model = VLAModel(cfg).eval()
+    policy = VLAPolicy(model, tok, instruction=INSTRUCTION)
+    obs = obs_at(32)
+    reasoning = Reasoning(PLANS, PLANS[:1], PLANS[1])
+    k = 5
+    noise = torch.randn(k, 16, 7, generator=torch.Generator().manual_seed(3))
+    with torch.inference_mode():
+        shared = model.sample_actions(policy.condition([obs], reasoning), noise)  # one row, k draws
+        alone = torch.cat([model.sample_actions(policy.condition([obs], reasoning), noise[i:i + 1]) for i in range(k)])
+        assert torch.allclose(shared, alone, atol=1e-5)
+        # incremental decoding (one token per extend, cache growing) = one teacher-forced pass
+        prefix = policy.encode([obs])
+        ids = torch.tensor([[tok.think_id, *tok.encode(reasoning.text())]])
+        full = model.extend(prefix, ids, torch.ones_like(ids, dtype=torch.bool)).hidden
+        seq = prefix
+        for j in range(ids.shape[1]):
+            seq = model.extend(seq, ids[:, j:j + 1], torch.ones(1, 1, dtype=torch.bool))
+        assert torch.allclose(seq.hidden, full, atol=1e-5)
+
+
+def test_twin_has_no_reasoning_parts(tok):
+    cfg = tiny(tok, reasoning=False)
+    model = VLAModel(cfg)
+    assert not any("think" in n for n, _ in model.named_parameters())
+    assert cfg.total_tokens == cfg.prefix_tokens
+    batch = synthetic_batch(cfg, 2)
+    assert "reason_ids" not in batch
+    _, metrics = model.loss(batch, torch.Generator().manual_seed(0))
+    assert set(metrics) == {"action", "loss"}
+    with_text = VLAModel(tiny(tok))
+    assert sum(p.numel() for p in with_text.parameters()) > sum(p.numel() for p in model.parameters())
+
+
+# ---------------------------------------------------------------------------------------- checkpoints
+
+
+def test_checkpoint_round_trip_and_export(tok, tmp_path):
+    torch.manual_seed(0)
+    model = VLAModel(tiny(tok))
+    model.set_normalization(np.arange(8), np.ones(8) * 2, np.zeros(7), np.ones(7) * 0.5)
+    save_checkpoint(tmp_path / "a", model, tok, {"steps": 0})
+    loaded, tok2, manifest = load_checkpoint(tmp_path / "a")
+    assert loaded.cfg == model.cfg and tok2.to_json() == tok.to_json() and manifest["steps"] == 0
+    for (n, a), (_, b) in zip(model.state_dict().items(), loaded.state_dict().items()):
+        assert torch.equal(a, b), n
+    half = export_checkpoint(tmp_path / "a", tmp_path / "b", dtype="bf16")
+    assert half["dtype"] == "bf16" and half["weights_bytes"] < 0.6 * manifest["weights_bytes"]
+    back, _, _ = load_checkpoint(tmp_path / "b")
+    w = model.state_dict()["expert.out.weight"]
+    assert torch.allclose(back.state_dict()["expert.out.weight"], w, atol=1e-2 * float(w.abs().max()))
+
+
+def test_bad_checkpoints_say_what_is_wrong(tok, tmp_path):
+    model = VLAModel(tiny(tok))
+    good = save_checkpoint(tmp_path / "good", model, tok)
+    weights = (good / "model.safetensors").read_bytes()
+
+    def variant(name, *, weights_bytes=None, config=None, manifest_edit=None):
+        d = save_checkpoint(tmp_path / name, model, tok)
+        if weights_bytes is not None:
+            (d / "model.safetensors").write_bytes(weights_bytes)
+        if config is not None:
+            (d / "config.json").write_text(json.dumps(config))
+        if manifest_edit:
+            m = json.loads((d / "manifest.json").read_text())
+            manifest_edit(m)
+            (d / "manifest.json").write_text(json.dumps(m))
+        return d
+
+    with pytest.raises(InvalidInput, match="truncated"):
+        load_checkpoint(variant("cut", weights_bytes=weights[: len(weights) // 2]))
+    unchecked = lambda m: (m.pop("weights_bytes"), m.pop("weights_sha256"))
+    with pytest.raises(InvalidInput, match="not a readable safetensors file"):
+        load_checkpoint(variant("cut2", weights_bytes=weights[:100], manifest_edit=unchecked))
+    wider = {**model.cfg.to_dict(), "d_expert": 64}
+    with pytest.raises(InvalidInput, match=r"does not fit config.json: tensor 'expert\.action_in\.bias' has shape \[32\], "
+                       r"the config wants \[64\].*more"):
+        load_checkpoint(variant("shape", config=wider))
+    deeper = {**model.cfg.to_dict(), "n_layers": 3}
+    with pytest.raises(InvalidInput, match=r"tensor 'blocks\.2\.attn\.qkv\.weight' is missing"):
+        load_checkpoint(variant("depth", config=deeper))
+    with pytest.raises(InvalidInput, match="unknown VLA config field"):
+        load_checkpoint(variant("field", config={**model.cfg.to_dict(), "colour": 1}))
+    with pytest.raises(InvalidInput, match="vocab_size"):
+        load_checkpoint(variant("vocab", config={**model.cfg.to_dict(), "vocab_size": tok.vocab_size + 1}))
+    (tmp_path / "torn").mkdir()
+    with pytest.raises(InvalidInput, match="manifest.json is missing"):
+        load_checkpoint(tmp_path / "torn")
+
+
+# ---------------------------------------------------------------------------------------- training
+
+
+@pytest.fixture(scope="module")
+def annotated(tmp_path_factory):
+    root = tmp_path_factory.mktemp("vla_data")
+    make_v21(root / "ds", [40, 35, 45])  # 224 px frames: the cache resizes them
+    annotate_dataset(root / "ds", root / "ann", make_annotator("offline"))
+    return root
+
+
+def _train(annotated, tok, run, steps, progress=None, **kw):
+    cfg = TrainConfig(steps=steps, batch_size=6, log_every=1, eval_every=1000, eval_samples=2, holdout=0.34,
+                      save_minutes=1000, bf16=False, warmup=2, **kw)
+    return train_vla(None, annotated / "ann", run, cfg, tiny(tok), cache=annotated / "cache", progress=progress)
+
+
+def _losses(run):
+    return [json.loads(line)["loss"] for line in (run / "metrics.jsonl").read_text().splitlines()
+            if "loss" in json.loads(line)]
+
+
+def test_training_resumes_exactly(annotated, tok, tmp_path):
+    _train(annotated, tok, tmp_path / "straight", 6)
+
+    def interrupt(stage, done, total, metrics=None):
+        if stage == "train" and done == 3:
+            raise KeyboardInterrupt  # Ctrl-C right after update 3: the run saves and stops
+
+    with pytest.raises(KeyboardInterrupt):
+        _train(annotated, tok, tmp_path / "resumed", 6, progress=interrupt)
+    assert json.loads((tmp_path / "resumed/checkpoint/train_state.json").read_text())["step"] == 3
+    summary = _train(annotated, tok, tmp_path / "resumed", 6)
+    assert summary["step"] == 6
+    straight, resumed = _losses(tmp_path / "straight"), _losses(tmp_path / "resumed")
+    assert len(straight) == 6 and resumed == straight
+    assert (tmp_path / "resumed/curves.png").stat().st_size > 1000
+    with pytest.raises(InvalidInput, match="other settings or data"):
+        _train(annotated, tok, tmp_path / "resumed", 8, lr=1e-3)
+    # the run's checkpoint is a loadable policy checkpoint, with the held-out split in its manifest
+    model, _, manifest = load_checkpoint(tmp_path / "resumed/checkpoint")
+    assert manifest["step"] == 6 and len(manifest["heldout_episodes"]) == 1
+
+
+def test_train_vla_command_and_bench(annotated, tmp_path, capsys):
+    (tmp_path / "tiny.json").write_text(json.dumps({k: v for k, v in tiny(train_tokenizer(project_texts())).to_dict()
+                                                     .items() if k != "vocab_size"}))
+    assert main(["train", "vla", "--annotations", str(annotated / "ann"), "--out", str(tmp_path / "run"),
+                 "--steps", "2", "--batch", "4", "--holdout", "0.34", "--no-reasoning", "--no-bf16",
+                 "--model-config", str(tmp_path / "tiny.json"), "--eval-every", "2",
+                 "--export", str(tmp_path / "ship")]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["step"] == 2 and "action_mse" in out["heldout"] and "subplan_accuracy" not in out["heldout"]
+    assert out["export"]["dtype"] == "bf16" and out["export"]["mb"] < 50
+    shipped = json.loads((tmp_path / "ship/manifest.json").read_text())
+    assert shipped["step"] == 2 and shipped["command"].startswith("seal ") and "heldout" in shipped
+    assert main(["bench", "vla", "--ckpt", str(tmp_path / "ship"), "--annotations", str(annotated / "ann"),
+                 "--trials", "1"]) == 0
+    bench = json.loads(capsys.readouterr().out)
+    for key in ("params", "prefix_ms", "reason_ms", "sample_ms_k1", "sample_ms_k10", "sample_ms_k10_nocache",
+                "train_samples_per_s", "subplan_accuracy", "action_mse"):
+        assert key in bench, key
+    assert bench["weights"] == "checkpoint" and bench["reason_ms"] is None and bench["action_mse"] >= 0
+
+
+# ---------------------------------------------------------------------------------------- the policy
+
+
+def test_policy_implements_the_protocol(tok, tmp_path):
+    torch.manual_seed(0)
+    ckpt = save_checkpoint(tmp_path / "ckpt", VLAModel(tiny(tok)), tok)
+    spec = MethodSpec(method="seal", policy=f"vla:{ckpt}")
+    assert spec.policy == "vla" and spec.policy_ckpt == str(ckpt) and len(spec.canonical()["policy_ckpt"]) == 12
+    task = SimpleNamespace(instruction=INSTRUCTION, key="libero_10/0")
+    policy = make_policy(spec.policy, spec, task, seed=1)
+    assert policy.thinks and policy.privileged_atoms() is None
+    policy.reset(INSTRUCTION, seed=7)
+    reasoning = policy.reason(obs_at(32))
+    assert isinstance(reasoning, Reasoning) and parse_reasoning(reasoning.text()) == reasoning
+    obs = obs_at(32)
+    policy.begin(3)
+    chunks = policy.act([obs, obs, obs_at(224, seed=2)], reasoning)  # a 224-px frame is resized
+    assert len(chunks) == 3 and all(c.actions.shape == (16, 7) and isinstance(c.think, bool) for c in chunks)
+    assert all(np.abs(c.actions).max() <= 1.0 for c in chunks)
+    assert not np.allclose(chunks[0].actions, chunks[1].actions)  # same observation, own noise per row
+    policy.reset(INSTRUCTION, seed=7)
+    policy.begin(3)
+    again = policy.act([obs, obs, obs], reasoning)
+    policy.reset(INSTRUCTION, seed=7)  # the same episode again: the same noise per (attempt, row)
+    policy.begin(3)
+    only = policy.act([obs], reasoning, rows=[2])  # a row's chunk does not depend on the other rows
+    assert np.allclose(only[0].actions, again[2].actions, atol=1e-5)
+    policy.reset(INSTRUCTION, seed=7)
+    policy.begin(3)
+    policy.bf16 = True  # bf16 autocast: the same chunks up to bf16 rounding
+    half = policy.act([obs, obs, obs], reasoning)
+    policy.bf16 = False
+    assert max(np.abs(h.actions - a.actions).max() for h, a in zip(half, again)) < 0.15
+    with pytest.raises(InvalidInput, match="both camera images"):
+        policy.act([Observation(state=np.zeros(8), prompt=INSTRUCTION)], reasoning)
+
+
+def test_twin_policy_and_missing_checkpoints(tok, tmp_path, monkeypatch):
+    ckpt = save_checkpoint(tmp_path / "twin", VLAModel(tiny(tok, reasoning=False)), tok)
+    policy = VLAPolicy.load(ckpt, instruction=INSTRUCTION)
+    policy.reset(INSTRUCTION, 0)
+    assert not policy.thinks
+    assert policy.reason(obs_at(32)) == Reasoning(plans=(INSTRUCTION,), done=(), now=INSTRUCTION)
+    policy.begin(2)
+    assert [c.think for c in policy.act([obs_at(32)] * 2, policy.reason(obs_at(32)))] == [False, False]
+    with pytest.raises(InvalidInput, match="no VLA checkpoint at"):
+        VLAPolicy.load(tmp_path / "nowhere")
+    with pytest.raises(InvalidInput, match="policy_ckpt is for the vla policy"):
+        MethodSpec(policy="scripted", policy_ckpt="x")
+    assert MethodSpec(policy="scripted").config_hash == MethodSpec().config_hash  # old hashes unchanged
+    from seal.policies.vla import locate
+
+    monkeypatch.setitem(locate.SHIPPED, "reason", tmp_path / "not-shipped")
+    with pytest.raises(InvalidInput, match=r"no shipped checkpoint yet .*train one with `seal train vla` or pass vla:PATH"):
+        MethodSpec(policy="vla").config_hash
+    assert MethodSpec(policy="vla:twin").policy_ckpt == "twin"
