@@ -279,6 +279,7 @@ def test_policy_implements_the_protocol(tok, tmp_path):
     task = SimpleNamespace(instruction=INSTRUCTION, key="libero_10/0")
     policy = make_policy(spec.policy, spec, task, seed=1)
     assert policy.thinks and policy.privileged_atoms() is None
+    assert policy.image_size == policy.cfg.image_size  # the loop renders both cameras at the trained size
     policy.reset(INSTRUCTION, seed=7)
     reasoning = policy.reason(obs_at(32))
     assert isinstance(reasoning, Reasoning) and parse_reasoning(reasoning.text()) == reasoning

@@ -69,6 +69,8 @@ class VLAPolicy:
         self.tok = tokenizer
         self.cfg = model.cfg
         self.thinks = self.cfg.reasoning
+        # both cameras rendered at the size the model was trained at (the steering loop reads this)
+        self.image_size = self.cfg.image_size
         self.planner = planner
         self.source = source
         self.manifest = manifest or {}
