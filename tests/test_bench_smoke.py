@@ -91,6 +91,17 @@ def test_bench_runtime_with_a_pixel_policy_splits_render_from_physics(capsys, tm
     assert (tmp_path / "fig6.png").stat().st_size > 10_000
 
 
+def test_bench_render_attributes_the_fast_modes_error_to_meshes(capsys):
+    out = _bench(capsys, "render", "--tasks", "0", "--image-size", "64")
+    task = out["tasks"]["0"]
+    assert task["faces_fast"] < task["faces_stock"]
+    for camera in ("agent", "wrist"):
+        cam = task[camera]
+        assert cam["psnr"] > 20 and cam["ms_fast"] > 0 and cam["ms_stock"] > 0
+        shares = [g["share"] for g in cam["error_by_geom"]]
+        assert shares == sorted(shares, reverse=True) and 0 < sum(shares) <= 1.0 + 1e-6
+
+
 def test_bench_eval(capsys):
     out = _bench(capsys, "eval", "--tasks", "5", "--trials", "1", "--k", "2", "--max-steps", "25")
     assert (out["trials_per_task"], out["trials_run_base"], out["trials_run_seal"]) == (1, 1, 1)

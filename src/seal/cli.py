@@ -630,7 +630,7 @@ def _add_annotate(sub) -> None:
 def _add_bench(sub) -> None:
     bench = sub.add_parser("bench", help="benchmarks; each prints one JSON object")
     bench.add_argument("what", choices=["sim", "expert", "steer", "runtime", "eval", "serve", "annotate",
-                                                       "value", "verifier", "verifier-sweep", "vla"])
+                                                       "value", "verifier", "verifier-sweep", "vla", "render"])
     bench.add_argument("--ckpt", default=None, help="vla: checkpoint (default: a random-init model of the default "
                                                      "config; 'reason'/'twin': the shipped ones)")
     bench.add_argument("--annotations", default=None, help="vla: annotations for the held-out figures")
@@ -649,11 +649,11 @@ def _add_bench(sub) -> None:
                        help="runtime: scripted (state only), pixels (the expert reading both cameras every chunk, "
                             "a VLA's rendering without its network) or vla[:PATH]; steer/verifier-sweep: the policy "
                             "(default scripted)")
-    bench.add_argument("--image-size", type=int, default=None, help="runtime: camera px for pixel policies (64)")
+    bench.add_argument("--image-size", type=int, default=None, help="runtime: camera px for pixel policies (64); render: the size measured (64)")
     bench.add_argument("--render", default=None, choices=["stock", "fast"],
                        help="runtime: render model (default: fast for pixel policies)")
     bench.add_argument("--plot", default=None, help="runtime: write the stacked breakdown against K to this PNG")
-    bench.add_argument("--tasks", default="", help="comma-separated task ids (expert: all; steer: 0,1,7; runtime: 5)")
+    bench.add_argument("--tasks", default="", help="comma-separated task ids (expert: all; steer: 0,1,7; runtime: 5; render: 0,3,9)")
     bench.add_argument("--trials", type=int, default=None,
                        help="expert/steer/runtime: trials (init states) per task (default 50); eval: trials per "
                             "task (default 3); serve: round trips (default 50)")

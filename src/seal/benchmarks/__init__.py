@@ -16,7 +16,8 @@ BENCHMARKS = {"sim": "seal.benchmarks.sim:run", "expert": "seal.benchmarks.exper
               "value": "seal.benchmarks.value:run",
               "verifier": "seal.benchmarks.verifier:run",
               "verifier-sweep": "seal.benchmarks.sweep:run",
-              "vla": "seal.benchmarks.vla:run"}
+              "vla": "seal.benchmarks.vla:run",
+              "render": "seal.benchmarks.render:run"}
 
 
 # `--trials` when not given, per benchmark (what it counts differs: init states per task, trials of

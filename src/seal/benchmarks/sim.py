@@ -10,6 +10,7 @@ import numpy as np
 from seal.sim.observation import AGENT_CAMERA, IMAGE_SIZE, RENDER_SIZE, WRIST_CAMERA, to_policy_image
 from seal.sim.package_path import package_frames
 from seal.sim.pool import EnvPool
+from seal.sim.render import drawn_faces
 from seal.sim.world import LiberoWorld
 
 
@@ -124,8 +125,8 @@ def run(args) -> dict:
             sizes[f"render_ms_fast_{px}{suffix}"] = _median_ms(lambda: _consumed(fast, px, camera), 10)
             sizes[f"render_psnr_fast_{px}{suffix}"] = round(float(np.median([q[0] or np.inf for q in quality])), 2)
             sizes[f"render_ssim_fast_{px}{suffix}"] = round(float(np.median([q[1] for q in quality])), 4)
-    sizes["faces_stock"] = int(world.model.mesh_facenum.sum())
-    sizes["faces_fast"] = int(fast.render_model.mesh_facenum.sum())
+    sizes["faces_stock"] = drawn_faces(world.model)  # faces a camera draws (collision meshes excluded)
+    sizes["faces_fast"] = drawn_faces(fast.render_model)
     world.restore(states[0])
     fast.restore(states[0])
     render_stock = _median_ms(lambda: world.render_raw((AGENT_CAMERA,)), 10)

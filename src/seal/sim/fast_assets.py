@@ -3,7 +3,10 @@
 On CPU rendering (Mesa llvmpipe) a LIBERO-10 frame costs ~11 ms fixed plus ~0.45 ms per
 1k mesh faces drawn, and the scenes carry ~400k visual faces, so geometry dominates.
 Here we build a *render-only* model of the scene in which every drawn mesh is
-quadric-decimated and every texture image is downsampled. Physics never sees this model
+quadric-decimated, part by connected part, each part to the fewest faces that keep its area and
+its surface (within ~1 mm near the robot, proportionally more for static scenery farther from
+the camera), with texture coordinates kept in their chart; and every texture image is
+downsampled. Physics never sees this model
 (`SceneRenderer` copies positions into it before drawing), so collision geometry is
 untouched where it matters - in the physics model. Only meshes a stock camera draws are
 decimated (collision meshes, group 0, are hidden as robosuite hides them).
@@ -26,18 +29,22 @@ import numpy as np
 
 from seal.sim.render import VISIBLE_GEOM_GROUPS
 
-CACHE_VERSION = 10
+CACHE_VERSION = 12
 
 
 @dataclass(frozen=True)
 class FastRenderSettings:
-    face_ratio: float = 0.06  # keep this share of each mesh's faces ...
-    min_faces: int = 200  # ... but never fewer than this (small meshes stay intact)
+    face_ratio: float = 0.06  # each part starts at this share of its faces (doubled until its guards hold)
+    min_faces: int = 200  # meshes this small stay intact
     texture_max: int = 256  # longest side of any texture image, in pixels
-    max_area_change: float = 0.03  # a decimated mesh must keep its surface area within 3%
-    # ... and 95% of its original vertices within this distance (metres) of the new surface:
-    # ~a tenth of what one policy-resolution pixel covers on the table from the agent camera.
+    max_area_change: float = 0.03  # a decimated part must keep its surface area within 3%
+    # ... and 99% of its original vertices within this distance (metres) of the new surface:
+    # ~a quarter of what one 224-px pixel covers on the table, 1 m from the agent camera.
     max_deviation: float = 0.001
+    # Static scenery farther than this from the agent camera gets both tolerances scaled by
+    # distance / this (a pixel covers proportionally more of it): the budget by projected size.
+    # Anything that moves may come close to the wrist camera and keeps the tolerances as they are.
+    reference_distance: float = 1.0
 
 
 def cache_dir() -> Path:
@@ -50,6 +57,7 @@ def build_fast_model(scene_xml: str, settings: FastRenderSettings = FastRenderSe
     stock = mujoco.MjModel.from_xml_string(scene_xml)
     root = ET.fromstring(scene_xml)
     drawn = _drawn_mesh_ids(stock)
+    slack = _distance_slack(stock, settings.reference_distance)
     out = cache_dir()
     out.mkdir(parents=True, exist_ok=True)
     for elem in root.iter("mesh"):
@@ -57,13 +65,37 @@ def build_fast_model(scene_xml: str, settings: FastRenderSettings = FastRenderSe
             continue
         mesh_id = mujoco.mj_name2id(stock, mujoco.mjtObj.mjOBJ_MESH, elem.get("name"))
         if mesh_id in drawn:
-            elem.set("file", str(_decimated_mesh(stock, mesh_id, elem, settings, out)))
+            elem.set("file", str(_decimated_mesh(stock, mesh_id, elem, settings, out, slack.get(mesh_id))))
             for attr in ("scale", "refpos", "refquat"):  # baked into the written vertices
                 elem.attrib.pop(attr, None)
     for elem in root.iter("texture"):
         if elem.get("file") is not None:
             elem.set("file", str(_small_texture(Path(elem.get("file")), settings.texture_max, out)))
     return mujoco.MjModel.from_xml_string(ET.tostring(root, encoding="unicode"))
+
+
+def _distance_slack(model: mujoco.MjModel, reference: float) -> dict[int, np.ndarray]:
+    """Per mesh, per vertex: how much its decimation tolerances may grow - its distance from the
+    agent camera over ``reference`` (at least 1) where the mesh is static scenery, else 1. A room
+    mesh wraps the whole scene, so the factor is per vertex, not per mesh."""
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    cam = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, "agentview")
+    if cam < 0:
+        return {}
+    slack: dict[int, np.ndarray] = {}
+    for g in range(model.ngeom):
+        if model.geom_type[g] != mujoco.mjtGeom.mjGEOM_MESH:
+            continue
+        mesh = int(model.geom_dataid[g])
+        v0, nv = model.mesh_vertadr[mesh], model.mesh_vertnum[mesh]
+        if model.body_weldid[model.geom_bodyid[g]] == 0:  # welded to the world: never moves
+            world = data.geom_xpos[g] + model.mesh_vert[v0:v0 + nv] @ data.geom_xmat[g].reshape(3, 3).T
+            factor = np.maximum(1.0, np.linalg.norm(world - data.cam_xpos[cam], axis=1) / reference)
+        else:  # it moves, and may come close to the wrist camera
+            factor = np.ones(nv)
+        slack[mesh] = factor if mesh not in slack else np.minimum(slack[mesh], factor)
+    return slack
 
 
 def _drawn_mesh_ids(model: mujoco.MjModel) -> set[int]:
@@ -106,6 +138,7 @@ class _Mesh:
     texcoords: np.ndarray | None = None  # (nt, 2)
     face_texcoords: np.ndarray | None = None  # (nf, 3) into texcoords
     source_faces: np.ndarray | None = None  # (nf,) after decimation: the original face each one is
+    source_verts: np.ndarray | None = None  # (nv,) for a sub-mesh: the vertex of the whole mesh each one is
 
 
 def _mesh_in_file_frame(model: mujoco.MjModel, i: int) -> _Mesh:
@@ -134,32 +167,80 @@ def _mesh_in_file_frame(model: mujoco.MjModel, i: int) -> _Mesh:
     return mesh
 
 
-def _decimated_mesh(model, i: int, elem, settings: FastRenderSettings, out: Path) -> Path:
+def _decimated_mesh(model, i: int, elem, settings: FastRenderSettings, out: Path,
+                    slack: np.ndarray | None = None) -> Path:
     mesh = _mesh_in_file_frame(model, i)
+    slack = np.ones(len(mesh.verts)) if slack is None else np.round(slack, 1)
     src = Path(elem.get("file"))
     key = _key(src.read_bytes() if src.is_file() else str(src), elem.get("scale"), elem.get("refpos"),
-               elem.get("refquat"), settings.face_ratio, settings.min_faces, settings.max_area_change, settings.max_deviation, mesh.verts.tobytes()[:4096])
+               elem.get("refquat"), settings.face_ratio, settings.min_faces, settings.max_area_change, settings.max_deviation, slack.tobytes(), mesh.verts.tobytes()[:4096])
     path = out / f"{src.stem}-{key}.obj"
     if path.is_file():
         return path
-    # Quadric decimation sometimes eats large flat parts of a non-manifold scene mesh (a
-    # floor, a table top, one piece of furniture in a room mesh). Surface area is a cheap
-    # witness, taken per connected part (a room mesh's lamp may vanish within 3% of the whole
-    # room's area): if any sizeable part lost too much, keep twice as many faces and try again,
-    # up to the original mesh.
-    parts, part_area = _parts(mesh)
-    sizeable = part_area >= 0.002 * part_area.sum()
-    target = max(settings.min_faces, int(len(mesh.faces) * settings.face_ratio))
-    out_mesh = mesh
-    while target < len(mesh.faces):
-        out_mesh = _simplify(mesh, 1.0 - target / len(mesh.faces))
-        kept = np.bincount(parts[out_mesh.source_faces], weights=_face_areas(out_mesh), minlength=len(part_area))
-        if (np.all(np.abs(kept - part_area)[sizeable] <= settings.max_area_change * part_area[sizeable])
-                and np.percentile(_deviation(mesh, out_mesh), 95) <= settings.max_deviation):
-            break
-        target, out_mesh = target * 2, mesh
+    out_mesh = mesh if len(mesh.faces) <= settings.min_faces else _decimate_by_part(mesh, settings, slack)
     _atomic_write(path, _obj_bytes(out_mesh))
     return path
+
+
+def _decimate_by_part(mesh: _Mesh, settings: FastRenderSettings, slack: np.ndarray) -> _Mesh:
+    """Each connected part of the mesh gets the faces it needs, no more.
+
+    A scene mesh is often many parts (a room: walls, a lamp, shelves; a basket: its strands and
+    rim). Decimated whole, one fragile part (thin, or finely shaped) decides the budget of all of
+    them. Per part, starting at ``face_ratio`` of its faces and doubling until it holds: its area
+    within ``max_area_change`` (quadric decimation sometimes eats large flat parts) and 99% of its
+    vertices within ``max_deviation`` of the new surface, both scaled by ``slack`` (the per-vertex
+    distance factor of static scenery). Parts under ``min_part_faces`` stay whole.
+    """
+    parts, _ = _parts(mesh)
+    order = np.argsort(parts, kind="stable")
+    bounds = np.searchsorted(parts[order], np.arange(parts.max() + 2))
+    pieces: list[_Mesh] = []
+    for p in range(parts.max() + 1):
+        faces = order[bounds[p]:bounds[p + 1]]
+        sub = _submesh(mesh, faces)
+        sub_slack = slack[sub.source_verts]
+        area = float(_face_areas(sub).sum())
+        target = max(MIN_PART_FACES, int(len(faces) * settings.face_ratio))
+        best = sub
+        while target < len(faces):
+            cand = _simplify(sub, 1.0 - target / len(faces))
+            tol_area = sub_slack.min() * settings.max_area_change * area
+            if (abs(float(_face_areas(cand).sum()) - area) <= tol_area
+                    and np.percentile(_deviation(sub, cand) / sub_slack, 99) <= settings.max_deviation):
+                best = cand
+                break
+            target *= 2
+        best.source_faces = faces[best.source_faces] if best is not sub else faces
+        pieces.append(best)
+    return _concat(mesh, pieces)
+
+
+MIN_PART_FACES = 24
+
+
+def _submesh(mesh: _Mesh, faces: np.ndarray) -> _Mesh:
+    """The given faces with only the vertices they use (normals and texcoords stay shared)."""
+    used, local = np.unique(mesh.faces[faces], return_inverse=True)
+    sub = _Mesh(verts=mesh.verts[used], faces=local.reshape(-1, 3), normals=mesh.normals,
+                face_normals=mesh.face_normals[faces], texcoords=mesh.texcoords,
+                face_texcoords=None if mesh.face_texcoords is None else mesh.face_texcoords[faces],
+                source_faces=np.arange(len(faces)))
+    sub.source_verts = used
+    return sub
+
+
+def _concat(mesh: _Mesh, pieces: list[_Mesh]) -> _Mesh:
+    offsets = np.cumsum([0] + [len(p.verts) for p in pieces])
+    return _Mesh(
+        verts=np.concatenate([p.verts for p in pieces]),
+        faces=np.concatenate([p.faces + o for p, o in zip(pieces, offsets)]),
+        normals=mesh.normals,
+        face_normals=np.concatenate([p.face_normals for p in pieces]),
+        texcoords=mesh.texcoords,
+        face_texcoords=None if mesh.face_texcoords is None else np.concatenate([p.face_texcoords for p in pieces]),
+        source_faces=np.concatenate([p.source_faces for p in pieces]),
+    )
 
 
 def _deviation(mesh: _Mesh, simple: _Mesh, k: int = 4) -> np.ndarray:

@@ -33,15 +33,24 @@ def scene_option() -> mujoco.MjvOption:
     return option
 
 
+def drawn_faces(model: mujoco.MjModel) -> int:
+    """Mesh faces a stock camera draws per frame (each visible mesh geom counts; a mesh drawn by
+    two geoms counts twice): what the render time scales with, unlike ``mesh_facenum.sum()``,
+    which also counts collision meshes nobody draws."""
+    geoms = np.flatnonzero((model.geom_type == mujoco.mjtGeom.mjGEOM_MESH) & (model.geom_rgba[:, 3] > 0)
+                           & np.isin(model.geom_group, VISIBLE_GEOM_GROUPS))
+    return int(model.mesh_facenum[model.geom_dataid[geoms]].sum())
+
+
 class SceneRenderer:
     """Draws ``camera`` views of a physics state through a render model of the same scene."""
 
-    def __init__(self, render_model: mujoco.MjModel, size: int = 256):
+    def __init__(self, render_model: mujoco.MjModel, size: int = 256, option: mujoco.MjvOption | None = None):
         self.model = render_model
         self.size = size
         self._data = mujoco.MjData(render_model)
         self._renderer = mujoco.Renderer(render_model, height=size, width=size)
-        self._option = scene_option()
+        self._option = scene_option() if option is None else option
         gl.track(self)
 
     def render(self, physics_model: mujoco.MjModel, physics_data: mujoco.MjData, camera: str,

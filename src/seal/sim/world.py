@@ -346,6 +346,11 @@ class LiberoWorld:
         finally:
             self.render_seconds += time.perf_counter() - t0
 
+    def render_state(self) -> np.ndarray:
+        """The joint positions the cameras show now: robosuite's observation instant
+        (`seal.sim.view`), which may trail the physics by a substep."""
+        return np.array(self._view.qpos)
+
     @property
     def render_model(self) -> mujoco.MjModel:
         """The model cameras draw: the physics model itself (stock) or its decimated twin (fast)."""

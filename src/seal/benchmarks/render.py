@@ -1,0 +1,101 @@
+"""`seal bench render`: the fast render mode per task and camera at one size - quality against
+stock, time per camera, and *where* the error is.
+
+The error of a fast frame is attributed to the geoms that stock draws at each pixel (MuJoCo's
+segmentation render of the stock model): the share of the squared error each mesh carries says
+which mesh to fix next, and whether it is texture or geometry. One state per task: the episode
+start of init 0 after 20 seeded random actions (the arm in view, objects where LIBERO put them).
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from seal.benchmarks.sim import _median_ms, psnr
+from seal.errors import InvalidInput
+from seal.sim.observation import AGENT_CAMERA, WRIST_CAMERA
+from seal.sim.render import SceneRenderer, drawn_faces, scene_option
+from seal.sim.suites import get_task, parse_task_ids
+from seal.sim.world import LiberoWorld
+
+TOP = 4  # geoms listed per camera
+
+
+def _segmentation(world: LiberoWorld, camera: str, px: int) -> np.ndarray:
+    """Geom id per pixel of the stock image (-1: background)."""
+    model = world.model
+    data = mujoco.MjData(model)
+    data.qpos[:] = world.render_state()
+    mujoco.mj_kinematics(model, data)
+    mujoco.mj_camlight(model, data)
+    renderer = mujoco.Renderer(model, px, px)
+    try:
+        renderer.enable_segmentation_rendering()
+        renderer.update_scene(data, camera=camera, scene_option=scene_option())
+        return renderer.render()[..., 0]
+    finally:
+        renderer.close()
+
+
+def _geom_label(model: mujoco.MjModel, g: int) -> str:
+    if g < 0:
+        return "background"
+    if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH:
+        name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_MESH, model.geom_dataid[g])
+    else:
+        name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g)
+    return name or f"geom {g}"
+
+
+def _fixed_cost_ms(world: LiberoWorld, px: int) -> float:
+    """A frame with every geom hidden: clearing, skybox, lights and read-back, what no mesh
+    budget can save."""
+    option = scene_option()
+    for group in range(len(option.geomgroup)):
+        option.geomgroup[group] = 0
+    renderer = SceneRenderer(world.render_model, px, option=option)
+    try:
+        return _median_ms(lambda: renderer.render(world.model, world.data, AGENT_CAMERA, world.render_state()), 8)
+    finally:
+        renderer.close()
+
+
+def _one_task(spec, px: int) -> dict:
+    stock = LiberoWorld(spec, render_mode="stock")
+    fast = LiberoWorld(spec, render_mode="fast")
+    try:
+        actions = np.random.default_rng(0).uniform(-1, 1, (20, 7))
+        for w in (stock, fast):
+            w.reset(0)
+            w.step_chunk(actions)
+        out = {"faces_stock": drawn_faces(stock.model), "faces_fast": drawn_faces(fast.render_model),
+               "ms_fixed": _fixed_cost_ms(fast, px)}
+        for camera, name in ((AGENT_CAMERA, "agent"), (WRIST_CAMERA, "wrist")):
+            a = stock.render_raw((camera,), size=px)[camera]
+            b = fast.render_raw((camera,), size=px)[camera]
+            err = ((a.astype(np.float64) - b.astype(np.float64)) ** 2).sum(-1)
+            ids = _segmentation(stock, camera, px)
+            total = float(err.sum()) or 1.0
+            shares = sorted(((float(err[ids == g].sum()) / total, int(g)) for g in np.unique(ids)), reverse=True)
+            out[name] = {
+                "psnr": psnr(a, b),
+                "ms_stock": _median_ms(lambda: stock.render_raw((camera,), size=px), 8),
+                "ms_fast": _median_ms(lambda: fast.render_raw((camera,), size=px), 8),
+                "error_by_geom": [{"geom": _geom_label(stock.model, g), "share": round(s, 3)}
+                                  for s, g in shares[:TOP]],
+            }
+        return out
+    finally:
+        stock.close()
+        fast.close()
+
+
+def run(args) -> dict:
+    px = getattr(args, "image_size", None) or 64
+    if not 16 <= px <= 1024:
+        raise InvalidInput(f"--image-size must be in 16..1024, got {px}")
+    tasks = parse_task_ids(args.suite, args.tasks or "0,3,9")
+    return {"suite": args.suite, "px": px,
+            "state": "init 0 after 20 seeded random actions",
+            "tasks": {str(t): _one_task(get_task(args.suite, t), px) for t in tasks}}
