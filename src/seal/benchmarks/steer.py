@@ -126,6 +126,8 @@ def run_runtime(args) -> dict:
         for k in ks:
             workers = None if args.workers is None else min(args.workers, k)
             with EnvPool(spec, k=k, workers=workers, render_mode=render) as pool:
+                if pixel:
+                    pool.prepare_render((image_size,))  # set-up, not per-step time
                 verifier = OracleVerifier() if latency == 0 else FixedLatencyOracle(latency)
                 method = MethodSpec(method="seal", k=k, knobs="misaligned", render=render,
                                     policy="vla" if policy_name.startswith("vla") else "scripted")

@@ -137,6 +137,12 @@ def _h_render(world, slots, payload):
     return out
 
 
+def _h_prepare(world, slots, payload):
+    for size in payload:  # builds the render model (fast mode: decimated meshes) and a renderer
+        world.render_raw(("agentview",), size)
+    return None
+
+
 def _h_crash(world, slots, payload):  # test hook: die like a segfault would
     os._exit(1)
 
@@ -148,6 +154,7 @@ _HANDLERS = {
     "observe": _h_observe,
     "check": _h_check,
     "render": _h_render,
+    "prepare": _h_prepare,
     "crash": _h_crash,
 }
 
@@ -271,6 +278,11 @@ class EnvPool:
 
     def render(self, cameras=("agentview",), slots=None, size: int = 256) -> list[dict[str, np.ndarray]]:
         return self._gather("render", slots, lambda ids: (ids, tuple(cameras), size))
+
+    def prepare_render(self, sizes=(256,)) -> None:
+        """Build every worker's render model and renderers for these sizes now, so the first
+        observation with images does not pay for it (benchmarks time steps, not set-up)."""
+        self._broadcast(lambda wi: ("prepare", tuple(int(s) for s in sizes)))
 
     def snapshot(self, slot: int) -> Snapshot:
         self._check_slot(slot)
