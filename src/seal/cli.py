@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import sys
@@ -76,13 +77,31 @@ def _cmd_demos(args) -> int:
     return 0
 
 
+@contextlib.contextmanager
+def _stage_bars(names: dict[str, str], info):
+    """A progress display for a training command: one bar per stage (``names``: stage -> label;
+    stages not named are "training"), ``info(extra)`` the text beside it. Yields the callback
+    ``progress(stage, done, total, extra=None)`` the trainers take."""
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                  TextColumn("{task.fields[info]}"), TimeRemainingColumn(), console=Console(stderr=True)) as bar:
+        jobs: dict = {}
+
+        def progress(stage, done, total, extra=None):
+            if stage not in jobs:
+                jobs[stage] = bar.add_task(names.get(stage, "training"), total=total, info="")
+            bar.update(jobs[stage], completed=done, total=total, info=info(extra))
+
+        yield progress
+
+
 def _cmd_train(args) -> int:
     if args.what == "verifier":
         return _cmd_train_verifier(args)
     if args.what == "vla":
         return _cmd_train_vla(args)
-    from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     from seal.train.pipeline import train_value_on_dataset
     from seal.train.vgps import IQLConfig
@@ -91,17 +110,8 @@ def _cmd_train(args) -> int:
         raise InvalidInput("seal train value needs --dataset (a LeRobot dataset)")
     cfg = IQLConfig(steps=args.steps or 3000, batch_size=args.batch_size or 128, lr=args.lr or 3e-4, gamma=args.gamma,
                     expectile=args.expectile, seed=0 if args.seed is None else args.seed)
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                  TextColumn("{task.fields[info]}"), TimeRemainingColumn(), console=Console(stderr=True)) as bar:
-        jobs: dict = {}
-
-        def progress(stage, done, total, metrics=None):
-            if stage not in jobs:
-                jobs[stage] = bar.add_task("reading episodes" if stage == "load" else "IQL updates", total=total,
-                                           info="")
-            info = f"q_loss {metrics['q_loss']:.4f}" if metrics and "q_loss" in metrics else ""
-            bar.update(jobs[stage], completed=done, total=total, info=info)
-
+    stages = {"load": "reading episodes", "train": "IQL updates"}
+    with _stage_bars(stages, lambda m: f"q_loss {m['q_loss']:.4f}" if m and "q_loss" in m else "") as progress:
         summary = train_value_on_dataset(Path(args.dataset), Path(args.out), goals=args.goals,
                                          holdout=0.2 if args.holdout is None else args.holdout, cfg=cfg,
                                          progress=progress)
@@ -136,8 +146,6 @@ def _cmd_verify(args) -> int:
 
 
 def _cmd_train_verifier(args) -> int:
-    from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     from seal.train.verifier import VerifierTrainConfig, train_verifier
 
@@ -147,15 +155,7 @@ def _cmd_train_verifier(args) -> int:
     cfg = VerifierTrainConfig(steps=args.steps or 2000, batch_size=args.batch_size or 64, lr=args.lr or 1e-3,
                               image_size=args.image_size, holdout_tasks=holdout, holdout_inits=args.holdout_inits,
                               seed=0 if args.seed is None else args.seed, save_every_s=args.save_every_min * 60.0)
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                  TextColumn("{task.fields[info]}"), TimeRemainingColumn(), console=Console(stderr=True)) as bar:
-        jobs: dict = {}
-
-        def progress(stage, done, total, info):
-            if stage not in jobs:
-                jobs[stage] = bar.add_task("decoding images" if stage == "load" else "training", total=total, info="")
-            bar.update(jobs[stage], completed=done, total=total, info=info)
-
+    with _stage_bars({"load": "decoding images", "train": "training"}, lambda info: info or "") as progress:
         summary = train_verifier(Path(args.data), Path(args.out), cfg, progress=progress, threads=args.threads or 1)
     keys = ("step", "split", "heldout_inits", "heldout_tasks")
     print(json.dumps({k: ({m: v for m, v in summary[k].items() if m != "per_kind"} if isinstance(summary[k], dict)
@@ -166,8 +166,6 @@ def _cmd_train_verifier(args) -> int:
 def _cmd_train_vla(args) -> int:
     from dataclasses import replace
 
-    from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     from seal.policies.vla.model import VLAConfig
     from seal.train.vla import TrainConfig, train_vla
@@ -186,19 +184,10 @@ def _cmd_train_vla(args) -> int:
             raise InvalidInput(f"--model-config {args.model_config}: {exc}") from None
     if args.no_reasoning:
         model_cfg = replace(model_cfg, reasoning=False)
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                  TextColumn("{task.fields[info]}"), TimeRemainingColumn(), console=Console(stderr=True)) as bar:
-        jobs: dict = {}
+    def info(m):
+        return f"loss {m['loss']:.4f}  {m['samples_per_s']:.1f} samples/s" if m else ""
 
-        def progress(stage, done, total, metrics=None):
-            if stage not in jobs:
-                jobs[stage] = bar.add_task("decoding episodes" if stage == "cache" else "training", total=total,
-                                           info="")
-            info = ""
-            if metrics:
-                info = f"loss {metrics['loss']:.4f}  {metrics['samples_per_s']:.1f} samples/s"
-            bar.update(jobs[stage], completed=done, total=total, info=info)
-
+    with _stage_bars({"cache": "decoding episodes", "train": "training"}, info) as progress:
         summary = train_vla(Path(args.dataset) if args.dataset else None, Path(args.annotations), Path(args.out),
                             cfg, model_cfg, cache=Path(args.cache) if args.cache else None, progress=progress,
                             command="seal " + " ".join(args.argv))
