@@ -265,17 +265,32 @@ def _cmd_report(args) -> int:
 
 
 def _cmd_serve(args) -> int:
-    from seal.serving.server import PolicyServer, scripted_factory, scripted_info
+    from seal.serving.server import POLICIES, PolicyServer, scripted_factory, scripted_info, vla_factory, vla_info
 
+    name, colon, ckpt = args.policy.partition(":")
+    if name not in POLICIES or (colon and name != "vla"):
+        raise InvalidInput(f"unknown --policy {args.policy!r} for seal serve; valid: scripted, vla, vla:twin, vla:PATH")
+    if args.max_batch < 1:
+        raise InvalidInput(f"--max-batch must be >= 1, got {args.max_batch}")
     api_key = None
     if args.require_api_key:
         api_key = os.environ.get("OPENPI_API_KEY")
         if not api_key:
             raise InvalidInput("--require-api-key: set the key in the OPENPI_API_KEY environment variable "
                                "(never on the command line)")
-    server = PolicyServer(scripted_factory(args.knobs, seed=args.seed), scripted_info(args.max_batch, plain=args.plain),
-                          host=args.host, port=args.port, default_task=args.task or None, api_key=api_key,
-                          metadata={"policy": args.policy, "knobs": args.knobs, "action_dim": 7, "action_horizon": 16})
+    meta = {"policy": name, "action_dim": 7, "action_horizon": 16}
+    if name == "vla":  # loads (and checks) the checkpoint now: a bad one fails before listening
+        factory = vla_factory(ckpt, seed=args.seed)
+        info = vla_info(factory, args.max_batch, plain=args.plain)
+        meta.update(checkpoint=factory.source, weights_sha256=factory.manifest.get("weights_sha256", "")[:12],
+                    reasoning_model=factory.model.cfg.reasoning, image_size=factory.model.cfg.image_size)
+        default_task = args.task  # the VLA reads pixels: a client need not configure a task
+    else:
+        factory, info = scripted_factory(args.knobs, seed=args.seed), scripted_info(args.max_batch, plain=args.plain)
+        meta["knobs"] = args.knobs
+        default_task = args.task or None
+    server = PolicyServer(factory, info, host=args.host, port=args.port, default_task=default_task, api_key=api_key,
+                          metadata=meta)
 
     def ready(port: int) -> None:  # one JSON line on stdout: scripts (and tests) read the port from it
         print(json.dumps({"event": "listening", "url": f"ws://{args.host}:{port}", "port": port}), flush=True)
@@ -581,11 +596,14 @@ def _add_report(sub) -> None:
 
 def _add_serve(sub) -> None:
     serve = sub.add_parser("serve", help="serve a SEAL policy over openpi's websocket protocol (docs/serving.md)")
-    serve.add_argument("--policy", default="scripted", choices=["scripted"])
-    serve.add_argument("--knobs", default="misaligned", choices=["clean", "misaligned"])
+    serve.add_argument("--policy", default="scripted",
+                       help="scripted (default): the scripted expert | vla[:PATH]: a learned VLA checkpoint "
+                            "(default: the shipped one; vla:twin for its twin)")
+    serve.add_argument("--knobs", default="misaligned", choices=["clean", "misaligned"], help="scripted only")
     serve.add_argument("--host", default="127.0.0.1", help="0.0.0.0 to accept other machines")
     serve.add_argument("--port", type=int, default=8000, help="0: any free port (printed on stdout)")
-    serve.add_argument("--task", default="", help="task for clients that do not configure one, e.g. libero_10/0")
+    serve.add_argument("--task", default="", help="scripted: task for clients that do not configure one, e.g. "
+                                                  "libero_10/0 (vla needs none)")
     serve.add_argument("--max-batch", type=int, default=64, help="largest batched request accepted")
     serve.add_argument("--seed", type=int, default=0)
     serve.add_argument("--plain", action="store_true",

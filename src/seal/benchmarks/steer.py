@@ -63,7 +63,8 @@ def run_steer(args) -> dict:
         per_task[str(t)] = {m: round(w / trials, 3) for m, w in wins.items()}
     base = float(np.mean([v["base"] for v in per_task.values()]))
     seal = float(np.mean([v["seal"] for v in per_task.values()]))
-    return {"suite": args.suite, "trials": trials, "k": args.k, "knobs": "misaligned", "verifier": verifier.name,
+    knobs = "misaligned" if methods["seal"].policy == "scripted" else None  # the scripted expert's setting only
+    return {"suite": args.suite, "trials": trials, "k": args.k, "knobs": knobs, "verifier": verifier.name,
             "policy": methods["seal"].policy,
             "max_steps": _max_steps(args),
             "base_mean_success": round(base, 3), "seal_mean_success": round(seal, 3), "lift": round(seal - base, 3),

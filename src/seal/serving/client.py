@@ -182,6 +182,10 @@ class OpenpiPolicy:
         self.session = uuid.uuid4().hex
         self.planner = planner
         self.thinks = self.info.reasoning  # a policy that never emits <think> (the engine checks)
+        # A server that wants its cameras at another size than openpi's 224 (a VLA trained at 64 px)
+        # says so; the steering loop then renders both cameras at that size (as for the policy in-process).
+        self.image_size = (self.info.image_size if self.info.images and self.info.image_size != P.IMAGE_SIZE
+                           else None)
         self.transport = self._pick_transport(config.transport)
         self._atoms: list[str] | None = None
         self._reasoning: Reasoning | None = None

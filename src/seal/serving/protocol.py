@@ -68,6 +68,9 @@ class ServerInfo:
     control: bool = False  # understands `seal/control` messages and sessions
     privileged: bool = False  # needs `seal/scene` (scripted policies only)
     images: bool = True  # needs the two camera images
+    # the camera size the policy was trained at: requests may carry images at this size instead of
+    # openpi's 224 (a client then renders its cameras at it); 224 images are always accepted
+    image_size: int = IMAGE_SIZE
     version: int = 0  # 0: not a SEAL server
 
     @classmethod
@@ -83,13 +86,15 @@ class ServerInfo:
         for f in fields(cls):
             if f.name in seal:
                 value = seal[f.name]
-                want = int if f.name in ("max_batch", "version") else bool
+                want = int if f.name in ("max_batch", "image_size", "version") else bool
                 if not isinstance(value, want) or (want is int and isinstance(value, bool)):
                     raise ProtocolError(f"metadata seal.{f.name} must be {want.__name__}, got {value!r}")
                 out[f.name] = value
         info = cls(**out)
         if info.max_batch < 1:
             raise ProtocolError(f"metadata seal.max_batch must be >= 1, got {info.max_batch}")
+        if not 16 <= info.image_size <= 1024:
+            raise ProtocolError(f"metadata seal.image_size must be in 16..1024 px, got {info.image_size}")
         return info
 
     def to_metadata(self) -> dict:
@@ -260,16 +265,19 @@ def batch_request(reqs: list[dict]) -> dict:
     return out
 
 
-def _image(req: dict, key: str, lead: tuple) -> np.ndarray:
+def _image(req: dict, key: str, lead: tuple, size: int = IMAGE_SIZE) -> np.ndarray:
+    """openpi's 224-px frame, or one at the size the server advertises (``seal.image_size``)."""
     img = req[key]
-    want = (*lead, IMAGE_SIZE, IMAGE_SIZE, 3)
-    if not isinstance(img, np.ndarray) or img.dtype != np.uint8 or img.shape != want:
+    wants = [(*lead, s, s, 3) for s in dict.fromkeys((IMAGE_SIZE, size))]
+    if not isinstance(img, np.ndarray) or img.dtype != np.uint8 or img.shape not in wants:
         got = f"{img.dtype} {img.shape}" if isinstance(img, np.ndarray) else type(img).__name__
-        raise ProtocolError(f"request {key!r}: expected uint8 array of shape {want}, got {got}")
+        raise ProtocolError(f"request {key!r}: expected uint8 array of shape {' or '.join(map(str, wants))}, "
+                            f"got {got}")
     return img
 
 
-def parse_request(req: Any, *, needs_images: bool, needs_scene: bool) -> list[Observation]:
+def parse_request(req: Any, *, needs_images: bool, needs_scene: bool, image_size: int = IMAGE_SIZE
+                  ) -> list[Observation]:
     """Server side: a single or batched request -> observations (validated)."""
     if not isinstance(req, dict):
         raise ProtocolError(f"a request must be a msgpack map, got {type(req).__name__}")
@@ -287,7 +295,8 @@ def parse_request(req: Any, *, needs_images: bool, needs_scene: bool) -> list[Ob
     if not isinstance(state, np.ndarray) or state.shape != (*lead, STATE_DIM) or state.dtype.kind != "f":
         got = f"{state.dtype} {state.shape}" if isinstance(state, np.ndarray) else type(state).__name__
         raise ProtocolError(f"request {STATE!r}: expected float array of shape {(*lead, STATE_DIM)}, got {got}")
-    images = (_image(req, IMAGE, lead), _image(req, WRIST, lead)) if IMAGE in req or needs_images else None
+    images = ((_image(req, IMAGE, lead, image_size), _image(req, WRIST, lead, image_size))
+              if IMAGE in req or needs_images else None)
     scenes = None
     if needs_scene:
         raw = req[SCENE]

@@ -41,7 +41,7 @@ from seal.serving import protocol as P
 log = logging.getLogger(__name__)
 
 PolicyFactory = Callable[[str], Any]  # task key (e.g. "libero_10/0") -> a ReasoningPolicy
-POLICIES = ("scripted",)
+POLICIES = ("scripted", "vla")  # `seal serve --policy scripted | vla[:PATH]`
 
 
 def scripted_factory(knobs: str = "misaligned", seed: int = 0) -> PolicyFactory:
@@ -67,6 +67,35 @@ def scripted_info(max_batch: int = 64, *, plain: bool = False) -> P.ServerInfo:
     expert then follows its own hidden plan for the whole task (a stand-in for pi0 in tests)."""
     return P.ServerInfo(reasoning=not plain, batch=not plain, max_batch=max_batch, control=True, privileged=True,
                         images=False, version=P.PROTOCOL_VERSION)
+
+
+def vla_factory(ckpt: str = "", seed: int = 0) -> PolicyFactory:
+    """A learned VLA checkpoint (``ckpt`` as in ``--policy vla:PATH``: '' the shipped reasoning
+    model, 'twin', or a directory). The weights are loaded once, here, so a missing or broken
+    checkpoint fails before the server listens; each session gets its own `VLAPolicy` (its own
+    episode seed and per-row noise streams) over the shared model. It reads pixels, not scene
+    state, so the task a client configures is not needed: any string is accepted."""
+    from seal.policies.vla.checkpoint import load_checkpoint
+    from seal.policies.vla.locate import resolve_checkpoint
+    from seal.policies.vla.policy import VLAPolicy
+
+    where = resolve_checkpoint(ckpt)
+    model, tok, manifest = load_checkpoint(where)
+
+    def make(task: str):
+        return VLAPolicy(model, tok, seed=seed, source=str(where), manifest=manifest)
+
+    make.model, make.source, make.manifest = model, str(where), manifest  # what the server describes
+    return make
+
+
+def vla_info(factory: PolicyFactory, max_batch: int = 64, *, plain: bool = False) -> P.ServerInfo:
+    """A reasoning checkpoint reasons over the wire like the scripted server; the twin cannot, so
+    it never does (its clients bring a planner). ``plain`` as for `scripted_info`. The server
+    advertises the image size the model was trained at; 224-px frames are resized to it."""
+    cfg = factory.model.cfg
+    return P.ServerInfo(reasoning=cfg.reasoning and not plain, batch=not plain, max_batch=max_batch, control=True,
+                        privileged=False, images=True, image_size=cfg.image_size, version=P.PROTOCOL_VERSION)
 
 
 @dataclass
@@ -164,12 +193,13 @@ class PolicyServer:
                 raise P.ProtocolError(f"no policy in session {sid!r} yet: send {{'{P.CONTROL}': 'configure', "
                                       "'task': 'libero_10/0'}} first")
             await self._configure(session, self.default_task)
-        obs = P.parse_request(req, needs_images=self.info.images, needs_scene=self.info.privileged)
+        obs = P.parse_request(req, needs_images=self.info.images, needs_scene=self.info.privileged,
+                              image_size=self.info.image_size)
         n = req.get(P.BATCH)
         rows = P.request_rows(req, n)
         given = req.get(P.REASONING) if self.info.reasoning else None
         reasoning = P.parse_reasoning(given) if given is not None else None
-        if reasoning is None and n is not None:
+        if reasoning is None and n is not None and _thinks(session.policy):
             raise P.ProtocolError(f"a batched request ({P.BATCH!r}) must carry 'reasoning' to act on")
         async with session.lock:
             t0 = time.perf_counter()
@@ -229,9 +259,17 @@ class PolicyServer:
         return session
 
 
+def _thinks(policy) -> bool:
+    return bool(getattr(policy, "thinks", True))
+
+
 def _infer(policy, obs, reasoning, rows) -> tuple[Any, list[ActionChunk]]:
     """A reply's content. Without given reasoning the policy reasons first (as a reasoning VLA
-    writes <think>...<act> before its actions), then acts as a fresh single attempt."""
+    writes <think>...<act> before its actions), then acts as a fresh single attempt. A policy
+    that never thinks (the VLA twin, a pi0) has no reasoning pass: it acts on its prompt within
+    the attempts the client started (``begin``), like a pi0 server sampling a chunk."""
+    if reasoning is None and not _thinks(policy):
+        return None, policy.act(obs, policy.reason(obs[0]), rows=rows)
     if reasoning is None:
         reasoning = policy.reason(obs[0])
         if reasoning.finished:

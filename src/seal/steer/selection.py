@@ -24,7 +24,7 @@ import numpy as np
 
 from seal.errors import InvalidInput
 from seal.policies.base import ACTION_HORIZON, Reasoning
-from seal.sim.observation import Observation
+from seal.sim.observation import IMAGE_SIZE, Observation
 from seal.sim.snapshot import Snapshot
 from seal.verify.base import Verdict
 
@@ -177,7 +177,7 @@ class ValueSelection(Selection):
         loop.pool.sync(sub.committed)
         loop.policy.begin(k)
         c = Candidate(round=0, slot=0, snapshot=sub.committed, t_start=time.perf_counter())
-        obs = sub.obs0
+        obs, judged = sub.obs0, self._scorer_view(loop, sub.obs0, sub.first_agent)
         while True:
             t0 = time.perf_counter()
             chunks = loop.policy.act([obs] * k, reasoning, rows=list(range(k)))
@@ -187,13 +187,15 @@ class ValueSelection(Selection):
             if end:  # most samples say the sub-plan is done: the policy would think now
                 c.ended_by, c.t_end = end, time.perf_counter()
                 break
-            scores = np.asarray(loop.scorer.score(obs, np.stack([chunks[i].actions for i in acting]), goal))
+            scores = np.asarray(loop.scorer.score(judged, np.stack([chunks[i].actions for i in acting]), goal))
             best = acting[int(np.argmax(scores))]
             result.timing["sampling_s"] += time.perf_counter() - t0
             t0 = time.perf_counter()
             chunk = np.clip(chunks[best].actions[:ACTION_HORIZON], -1.0, 1.0)
             res = loop.pool.step({0: chunk}, observe=True, images=loop.policy_images or loop.scorer_needs_images,
                                  privileged_atoms=loop.atoms, stop_on_success=True)[0]
+            if res.ok and not res.success:
+                judged = self._scorer_view(loop, res.observation)
             result.timing["predict_s"] += time.perf_counter() - t0
             result.timing["physics_cpu_s"] += res.physics_s
             result.timing["render_cpu_s"] += res.render_s
@@ -209,6 +211,17 @@ class ValueSelection(Selection):
         loop.emit("candidate", round=0, slot=0, steps=c.steps, ended_by=c.ended_by, error=c.error,
                   snapshot=c.snapshot.id, verdict=None, t_start=c.t_start, t_end=c.t_end, t_verified=0.0)
         return c
+
+    @staticmethod
+    def _scorer_view(loop: "Steerer", obs: Observation, agent: "np.ndarray | None" = None) -> Observation:
+        """What the Q-function scores: openpi's 224-px agent view, which it was trained on. A
+        policy that reads its cameras at its own size (a VLA at 64 px) gets its own renders, and
+        the scorer a 224-px view of the same state (``agent`` when the caller has it already)."""
+        if not loop.scorer_needs_images or (obs.agent is not None and obs.agent.shape[0] == IMAGE_SIZE):
+            return obs
+        if agent is None or agent.shape[0] != IMAGE_SIZE:
+            agent = loop._observe(0, images=True, atoms=None).agent
+        return Observation(state=obs.state, prompt=obs.prompt, agent=agent)
 
 
 SELECTIONS: dict[str, type[Selection]] = {s.name: s for s in (Selection, RandomSelection, ValueSelection, SealSelection)}
