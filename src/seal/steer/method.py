@@ -167,9 +167,9 @@ class MethodSpec:
         else:  # the weights, not the path, decide the results: retraining in place is a new method
             d["value_ckpt"] = checkpoint_digest(self.value_ckpt)
         if self.policy == "vla":  # the weights, not the path, decide the results (as for value_ckpt)
-            from seal.policies.vla.locate import checkpoint_digest
+            from seal.policies.vla.locate import checkpoint_digest as vla_digest
 
-            d["policy_ckpt"] = checkpoint_digest(self.policy_ckpt)
+            d["policy_ckpt"] = vla_digest(self.policy_ckpt)
         if self.policy != "scripted":  # the expert's failure setting means nothing to another policy
             d.pop("knobs")
         else:
