@@ -12,7 +12,8 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from seal.benchmarks.sim import _median_ms, psnr
+from seal.benchmarks import median_ms
+from seal.benchmarks.sim import psnr
 from seal.errors import InvalidInput
 from seal.sim.observation import AGENT_CAMERA, WRIST_CAMERA
 from seal.sim.render import SceneRenderer, drawn_faces, scene_option
@@ -56,7 +57,7 @@ def _fixed_cost_ms(world: LiberoWorld, px: int) -> float:
         option.geomgroup[group] = 0
     renderer = SceneRenderer(world.render_model, px, option=option)
     try:
-        return _median_ms(lambda: renderer.render(world.model, world.data, AGENT_CAMERA, world.render_state()), 8)
+        return median_ms(lambda: renderer.render(world.model, world.data, AGENT_CAMERA, world.render_state()), 8)
     finally:
         renderer.close()
 
@@ -80,8 +81,8 @@ def _one_task(spec, px: int) -> dict:
             shares = sorted(((float(err[ids == g].sum()) / total, int(g)) for g in np.unique(ids)), reverse=True)
             out[name] = {
                 "psnr": psnr(a, b),
-                "ms_stock": _median_ms(lambda: stock.render_raw((camera,), size=px), 8),
-                "ms_fast": _median_ms(lambda: fast.render_raw((camera,), size=px), 8),
+                "ms_stock": median_ms(lambda: stock.render_raw((camera,), size=px), 8),
+                "ms_fast": median_ms(lambda: fast.render_raw((camera,), size=px), 8),
                 "error_by_geom": [{"geom": _geom_label(stock.model, g), "share": round(s, 3)}
                                   for s, g in shares[:TOP]],
             }

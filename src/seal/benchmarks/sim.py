@@ -3,24 +3,14 @@ camera path, stock vs fast rendering per resolution, pool speedup."""
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
+from seal.benchmarks import median_ms
 from seal.sim.observation import AGENT_CAMERA, IMAGE_SIZE, RENDER_SIZE, WRIST_CAMERA, to_policy_image
 from seal.sim.package_path import package_frames
 from seal.sim.pool import EnvPool
 from seal.sim.render import drawn_faces
 from seal.sim.world import LiberoWorld
-
-
-def _median_ms(fn, n: int) -> float:
-    times = []
-    for _ in range(n):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return round(1000 * float(np.median(times)), 3)
 
 
 def psnr(a: np.ndarray, b: np.ndarray) -> float | None:
@@ -87,12 +77,12 @@ def run(args) -> dict:
 
     # reset: openpi's episode start (fixtures, controller), an init state not used before, settle steps
     episodes = iter(range(1, world.num_init_states))
-    reset_ms = _median_ms(lambda: world.reset(next(episodes)), 8)
+    reset_ms = median_ms(lambda: world.reset(next(episodes)), 8)
     world.reset(0)
 
     # physics: one 20 Hz control step (25 MuJoCo substeps), cameras off
     it = iter(actions)
-    physics_ms = _median_ms(lambda: world.step(next(it)), 40)
+    physics_ms = median_ms(lambda: world.step(next(it)), 40)
 
     # exact restore: snapshot, run 50 steps, restore, replay, compare bit for bit
     world.reset(1)
@@ -100,7 +90,7 @@ def run(args) -> dict:
     world.step_chunk(actions[:50])
     reference = world.snapshot()
     world.reset(2)
-    restore_ms = _median_ms(lambda: world.restore(snap), 50)
+    restore_ms = median_ms(lambda: world.restore(snap), 50)
     world.restore(snap)
     world.step_chunk(actions[:50])
     diff = float(np.abs(world.snapshot().physics - reference.physics).max())
@@ -121,17 +111,17 @@ def run(args) -> dict:
                 fast.restore(s)
                 a, b = _consumed(world, px, camera), _consumed(fast, px, camera)
                 quality.append((psnr(a, b), ssim(a, b)))
-            sizes[f"render_ms_stock_{px}{suffix}"] = _median_ms(lambda: _consumed(world, px, camera), 10)
-            sizes[f"render_ms_fast_{px}{suffix}"] = _median_ms(lambda: _consumed(fast, px, camera), 10)
+            sizes[f"render_ms_stock_{px}{suffix}"] = median_ms(lambda: _consumed(world, px, camera), 10)
+            sizes[f"render_ms_fast_{px}{suffix}"] = median_ms(lambda: _consumed(fast, px, camera), 10)
             sizes[f"render_psnr_fast_{px}{suffix}"] = round(float(np.median([q[0] or np.inf for q in quality])), 2)
             sizes[f"render_ssim_fast_{px}{suffix}"] = round(float(np.median([q[1] for q in quality])), 4)
     sizes["faces_stock"] = drawn_faces(world.model)  # faces a camera draws (collision meshes excluded)
     sizes["faces_fast"] = drawn_faces(fast.render_model)
     world.restore(states[0])
     fast.restore(states[0])
-    render_stock = _median_ms(lambda: world.render_raw((AGENT_CAMERA,)), 10)
-    render_fast = _median_ms(lambda: fast.render_raw((AGENT_CAMERA,)), 10)
-    render_both = _median_ms(lambda: world.render_raw((AGENT_CAMERA, WRIST_CAMERA)), 5)
+    render_stock = median_ms(lambda: world.render_raw((AGENT_CAMERA,)), 10)
+    render_fast = median_ms(lambda: fast.render_raw((AGENT_CAMERA,)), 10)
+    render_both = median_ms(lambda: world.render_raw((AGENT_CAMERA, WRIST_CAMERA)), 5)
     fast.close()
 
     # pool: K envs stepping 5-step chunks, vs the same work in this one process
@@ -145,12 +135,12 @@ def run(args) -> dict:
             world.restore(start_snap)
             world.step_chunk(c)
 
-    serial_ms = _median_ms(serial, rounds)
+    serial_ms = median_ms(serial, rounds)
     world.close()
     with EnvPool(task, k=k, workers=args.workers) as pool:
         pool.sync(start_snap)
         pool.step(chunks)  # warm-up
-        pool_ms = _median_ms(lambda: (pool.sync(start_snap), pool.step(chunks)), rounds)
+        pool_ms = median_ms(lambda: (pool.sync(start_snap), pool.step(chunks)), rounds)
         workers = pool.num_workers
 
     return {

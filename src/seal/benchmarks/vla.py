@@ -32,6 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
+from seal.benchmarks import median_ms
+
 
 # Candidate sizes (fields of VLAConfig that differ from its defaults); "M" is the default.
 SIZES = {
@@ -91,13 +93,7 @@ def _interleaved_ms(fns, reps: int) -> list[float]:
 
 
 def _median_ms(fn, reps: int) -> float:
-    fn()  # warm-up (allocator, lazy init)
-    times = []
-    for _ in range(reps):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return round(1000 * float(np.median(times)), 2)
+    return round(median_ms(fn, reps, warmup=True), 2)
 
 
 def run(args) -> dict:
