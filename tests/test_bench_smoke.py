@@ -123,8 +123,12 @@ def test_bench_serve(capsys):
     assert (out["k"], out["trials"]) == (2, 5)
     _positive(out, "request_kb_per_obs", "scene_kb_per_obs", "inprocess_ms_k1", "inprocess_ms_k2", "rtt_ms_k1",
               "rtt_ms_k2_sequential", "rtt_ms_k2_concurrent", "rtt_ms_k2_batched", "overhead_vs_inprocess")
-    assert out["faster"] in ("concurrent", "batched")
-    assert out["rtt_ms_k1"] > out["inprocess_ms_k1"]  # a round trip cannot beat the call it wraps
+    # No timing order is asserted: medians of 5 calls on a shared 2-core machine can cross (CI once saw a
+    # round trip 0.4 ms under the in-process call it wraps). What must hold is the arithmetic of the report.
+    remote = {t: out[f"rtt_ms_k2_{t}"] for t in ("concurrent", "batched")}
+    assert out["faster"] == min(remote, key=remote.get)
+    assert out["overhead_ms_per_chunk"] == pytest.approx(min(remote.values()) - out["inprocess_ms_k2"], abs=2e-3)
+    assert out["request_kb_per_obs"] > out["scene_kb_per_obs"]  # the request carries the scene and the images
 
 
 def test_bench_annotate(capsys, tmp_path):
