@@ -156,3 +156,18 @@ def test_bench_verifier_scores_the_learned_verifier(run, data, tmp_path, capsys)
     assert c["tp"] + c["fp"] + c["fn"] + c["tn"] == 60
     assert "| pick |" in md.read_text()
     assert np.isclose(result["fp_rate"], c["fp"] / max(c["fp"] + c["tn"], 1))
+
+
+def test_several_collections_train_as_one_and_a_repeated_one_is_refused(tmp_path):
+    a = write_cases(tmp_path / "l10", 12, tasks=("libero_10/0",), inits=4)
+    b = write_cases(tmp_path / "l90", 10, tasks=("libero_90/9",), inits=4, seed=1)
+    arrays, fingerprint = load_arrays([a, b], 32)
+    assert len(arrays) == 22 and arrays.first.shape == (22, 3, 32, 32)
+    assert arrays.task == ["libero_10/0"] * 12 + ["libero_90/9"] * 10
+    assert fingerprint != load_arrays(a, 32)[1] and fingerprint == load_arrays([a, b], 32)[1]
+    with pytest.raises(InvalidInput, match="two --data directories"):
+        load_arrays([a, a], 32)
+    assert main(["train", "verifier", "--data", f"{a},{b}", "--out", str(tmp_path / "run"), "--steps", "2",
+                 "--batch-size", "8", "--image-size", "32", "--holdout-tasks", "libero_90/9"]) == 0
+    manifest = json.loads((tmp_path / "run" / "manifest.json").read_text())
+    assert manifest["data"] == f"{a},{b}" and manifest["split"]["heldout_tasks"] == 10

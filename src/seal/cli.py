@@ -150,13 +150,14 @@ def _cmd_train_verifier(args) -> int:
     from seal.train.verifier import VerifierTrainConfig, train_verifier
 
     if not args.data:
-        raise InvalidInput("seal train verifier needs --data (a `seal verify collect` directory)")
+        raise InvalidInput("seal train verifier needs --data (one or more `seal verify collect` directories, "
+                           "comma-separated)")
     holdout = tuple(t.strip() for t in (args.holdout_tasks or "").split(",") if t.strip())
     cfg = VerifierTrainConfig(steps=args.steps or 2000, batch_size=args.batch_size or 64, lr=args.lr or 1e-3,
                               image_size=args.image_size, holdout_tasks=holdout, holdout_inits=args.holdout_inits,
                               seed=0 if args.seed is None else args.seed, save_every_s=args.save_every_min * 60.0)
     with _stage_bars({"load": "decoding images", "train": "training"}, lambda info: info or "") as progress:
-        summary = train_verifier(Path(args.data), Path(args.out), cfg, progress=progress, threads=args.threads or 1)
+        summary = train_verifier([Path(d) for d in args.data.split(",") if d], Path(args.out), cfg, progress=progress, threads=args.threads or 1)
     keys = ("step", "split", "heldout_inits", "heldout_tasks")
     print(json.dumps({k: ({m: v for m, v in summary[k].items() if m != "per_kind"} if isinstance(summary[k], dict)
                           and "per_kind" in summary[k] else summary[k]) for k in keys}))
@@ -495,7 +496,8 @@ def _add_train(sub) -> None:
                           "for shipping, e.g. src/seal/policies/vla/checkpoints/reason")
     vla.add_argument("--export-dtype", default="bf16", choices=["bf16", "fp16", "fp32"])
     ver = train.add_argument_group("verifier")
-    ver.add_argument("--data", default=None, help="`seal verify collect` directory")
+    ver.add_argument("--data", default=None, help="`seal verify collect` directory, or several comma-separated "
+                                                   "(e.g. a LIBERO-10 and a LIBERO-90 collection)")
     ver.add_argument("--holdout-tasks", default="",
                      help="comma-separated task keys (libero_10/1,...) never trained on")
     ver.add_argument("--holdout-inits", type=float, default=0.2,

@@ -1,6 +1,7 @@
 """`seal train verifier`: the learned verifier (`seal.verify.learned`) from verification cases.
 
-Data: a `seal verify collect` directory (`seal.verify.dataset`). Images are decoded once and
+Data: one or more `seal verify collect` directories (`seal.verify.dataset`), e.g. LIBERO-10 cases
+and LIBERO-90 cases collected apart (a collection holds one suite). Images are decoded once and
 downsampled to the model's input size with the model's own function (`prepare_images`), then
 kept in memory as uint8 and cached in ``RUN/cache-<size>.npz``.
 
@@ -94,12 +95,10 @@ def _downsample(pngs: list[bytes], size: int) -> np.ndarray:
     return out
 
 
-def load_arrays(data: Path, size: int, cache_dir: Path | None = None, progress=None) -> tuple[CaseArrays, str]:
-    """Every case of a collection at ``size`` px, and a fingerprint of the data."""
+def _load_one(data: Path, size: int, cache_dir: Path | None, progress) -> tuple[CaseArrays, list[str]]:
     meta_cols = ["case_id", "task", "init_source", "init_index", "subplan", "plans", "subplan_index", "kind", "label"]
     meta = ds.read_cases(data, columns=meta_cols).to_pydict()
-    n = len(meta["case_id"])
-    if n == 0:
+    if not meta["case_id"]:
         raise InvalidInput(f"{data} holds no cases; collect some with `seal verify collect`")
     fingerprint = hashlib.sha1("\n".join(meta["case_id"]).encode()).hexdigest()[:16]
     cache = None if cache_dir is None else Path(cache_dir) / f"cache-{size}-{fingerprint}.npz"
@@ -129,7 +128,25 @@ def load_arrays(data: Path, size: int, cache_dir: Path | None = None, progress=N
     init_key = [f"{t}:{s}:{i}" for t, s, i in zip(meta["task"], meta["init_source"], meta["init_index"])]
     return CaseArrays(first, final, wrist, list(meta["subplan"]), context,
                       np.asarray(meta["label"], dtype=np.float32), list(meta["task"]), list(meta["kind"]),
-                      init_key), fingerprint
+                      init_key), list(meta["case_id"])
+
+
+def load_arrays(data: Path | list[Path], size: int, cache_dir: Path | None = None,
+                progress=None) -> tuple[CaseArrays, str]:
+    """Every case of one or more collections at ``size`` px, and a fingerprint of the data (its case
+    ids, in the order given)."""
+    parts = [_load_one(Path(d), size, cache_dir, progress) for d in ([data] if isinstance(data, (str, Path)) else data)]
+    ids = [i for _, part_ids in parts for i in part_ids]
+    if len(set(ids)) != len(ids):
+        raise InvalidInput("the same verification case appears in two --data directories; give each collection once")
+    fingerprint = hashlib.sha1("\n".join(ids).encode()).hexdigest()[:16]
+    if len(parts) == 1:
+        return parts[0][0], fingerprint
+    arrays = [a for a, _ in parts]
+    cat = lambda name: np.concatenate([getattr(a, name) for a in arrays])  # noqa: E731
+    join = lambda name: [x for a in arrays for x in getattr(a, name)]  # noqa: E731
+    return CaseArrays(cat("first"), cat("final"), cat("wrist"), join("subplan"), join("context"), cat("label"),
+                      join("task"), join("kind"), join("init_key")), fingerprint
 
 
 def split(arrays: CaseArrays, cfg: VerifierTrainConfig) -> dict[str, np.ndarray]:
@@ -205,7 +222,7 @@ def _save_state(out: Path, obj: dict) -> None:
     tmp.replace(out / STATE)
 
 
-def train_verifier(data: Path, out: Path, cfg: VerifierTrainConfig, *, progress=None, threads: int | None = 1) -> dict:
+def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig, *, progress=None, threads: int | None = 1) -> dict:
     """Train (or continue training) into ``out``; returns the summary written to metrics.json.
 
     ``progress(stage, done, total, info)``: stage "load" then "train"."""
@@ -213,7 +230,8 @@ def train_verifier(data: Path, out: Path, cfg: VerifierTrainConfig, *, progress=
         torch.set_num_threads(threads)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    arrays, fingerprint = load_arrays(Path(data), cfg.image_size, cache_dir=out,
+    datas = [Path(data)] if isinstance(data, (str, Path)) else [Path(d) for d in data]
+    arrays, fingerprint = load_arrays(datas, cfg.image_size, cache_dir=out,
                                       progress=(lambda s, d, t: progress("load", d, t, "")) if progress else None)
     parts = split(arrays, cfg)
     train_idx = parts["train"]
@@ -241,7 +259,7 @@ def train_verifier(data: Path, out: Path, cfg: VerifierTrainConfig, *, progress=
         raise InvalidInput(f"only {len(train_idx)} training case(s); collect more")
 
     def summary(final: bool) -> dict:
-        return {"step": step, "data": str(data), "data_fingerprint": fingerprint,
+        return {"step": step, "data": ",".join(map(str, datas)), "data_fingerprint": fingerprint,
                 "split": {k: int(len(v)) for k, v in parts.items()},
                 "holdout_tasks": list(cfg.holdout_tasks), "holdout_inits": cfg.holdout_inits,
                 "train": evaluate(net, arrays, train_idx[:2000], vocab, max_words, threshold) if final else None,
