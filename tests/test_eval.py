@@ -123,8 +123,24 @@ def test_tiny_run_end_to_end_and_resume(tmp_path):
         assert all(r.status == "ok" and r.steps <= SHORT + 5 and Path(r.trace_path).exists() for r in rows)
         assert all(r.verifier_calls > 0 for r in rows if r.method.startswith("seal"))
         assert set(store.methods()) == {m.config_hash for m in methods}
+        # The alignment audit: every commit is audited against simulator truth, for base as for seal, and
+        # an oracle-verified commit must be audited as achieved (same grounding, same committed state).
+        assert sum(r.subplans_audited for r in rows) > 0
+        for r in rows:
+            commits = [e for e in _events(r) if e["event"] == "commit"]
+            audited = [e["aligned"] for e in commits if e["aligned"] is not None]
+            assert (r.subplans_audited, r.subplans_aligned) == (len(audited), sum(audited))
+            assert all(e["aligned"] for e in commits if (e["verdict"] or {}).get("success"))
+    assert set(summary.alignment) == {"base", "seal[k=2]"}
+    assert all(v is None or 0 <= v <= 1 for v in summary.alignment.values())
     again = run_eval(str(db), methods, ["libero_10"], [0, 1], 2, options=options)
     assert (again.already_done, again.ran) == (8, 0)
+
+
+def _events(row):
+    from seal.steer.trace import read_trace
+
+    return read_trace(row.trace_path)
 
 
 def test_value_method_runs_with_a_trained_checkpoint(tmp_path):
@@ -223,7 +239,7 @@ def test_store_migrates_an_older_schema(tmp_path):
     with ResultStore(db) as store:
         store.add(TrialRow(method="base", config_hash="h", suite="libero_10", task=0, trial=0, init_index=0, seed=0))
     con = sqlite3.connect(db)  # make it look like a v1 file (before policy_s and the verifier-error columns)
-    for column in ("policy_s", "verifier_errors", "verifier_unavailable"):
+    for column in ("policy_s", "verifier_errors", "verifier_unavailable", "subplans_audited", "subplans_aligned"):
         con.execute(f"ALTER TABLE trials DROP COLUMN {column}")
     con.execute("UPDATE seal_meta SET value = '1' WHERE key = 'schema_version'")
     con.commit()
@@ -231,8 +247,9 @@ def test_store_migrates_an_older_schema(tmp_path):
     with ResultStore(db) as store:
         (row,) = store.rows()
     assert row.policy_s == 0.0 and row.verifier_errors == 0 and row.verifier_unavailable is False
+    assert (row.subplans_audited, row.subplans_aligned) == (0, 0)
     con = sqlite3.connect(db)
-    assert con.execute("SELECT value FROM seal_meta WHERE key = 'schema_version'").fetchone()[0] == "3"
+    assert con.execute("SELECT value FROM seal_meta WHERE key = 'schema_version'").fetchone()[0] == "4"
     con.close()
 
 

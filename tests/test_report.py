@@ -88,6 +88,7 @@ def store_path(tmp_path_factory) -> Path:
                                        steps=100, wall_s=20.0 * spec.effective_k, step_s=5.0,
                                        verifier_calls=3 * (spec.method == "seal"), input_tokens=1000, output_tokens=50,
                                        cost_usd=0.01, subplans=["pick up the soup", "place it in the basket"],
+                                       subplans_audited=2, subplans_aligned=1 + (spec.method == "seal"),
                                        trace_path=trace, video_path=video, worker="w1"))
         # A seal trial base never ran: must not enter any paired comparison.
         store.add(TrialRow(method=SEAL.label, config_hash=SEAL.config_hash, suite="libero_10", task=0, trial=N,
@@ -191,6 +192,9 @@ def test_csv_layout(report):
     runtime = {r["method"]: r for r in csv.DictReader(by_name["runtime.csv"].read_text().splitlines())}
     assert float(runtime["base"]["wall_s_per_executed_step"]) == pytest.approx(0.2)  # 20 s / 100 steps
     assert float(runtime["seal[k=2]"]["verifier_calls_per_trial"]) == pytest.approx(60 / 21, abs=0.01)
+    align = {r["method"]: r for r in csv.DictReader(by_name["alignment.csv"].read_text().splitlines())}
+    assert float(align["base"]["alignment_rate"]) == 0.5 and float(align["seal[k=2]"]["alignment_rate"]) == 1.0
+    assert align["base"]["subplans_audited"] == str(2 * N * 3)  # 2 per trial, 3 tasks; totals, not a mean of rates
     errors = list(csv.DictReader(by_name["errors.csv"].read_text().splitlines()))
     assert len(errors) == 1 and errors[0]["method"] == "seal[k=2]"
 

@@ -128,4 +128,6 @@ def fill_row(row: TrialRow, result) -> None:
     row.input_tokens, row.output_tokens = result.input_tokens, result.output_tokens
     row.cost_usd = result.cost_usd
     row.subplans, row.goal_status = result.subplans, result.goal_status
+    audited = [a for a in result.aligned if a is not None]
+    row.subplans_audited, row.subplans_aligned = len(audited), sum(audited)
     row.trace_path = result.trace

@@ -29,6 +29,8 @@ class EvalSummary:
     trials: dict = field(default_factory=dict)  # method label -> finished trials of this command
     verifier_errors: dict = field(default_factory=dict)  # method label -> verifications with no answer
     verifier_unavailable: dict = field(default_factory=dict)  # method label -> trials mostly unverified
+    # method label -> share of committed sub-plans achieved by simulator truth (None: none audited)
+    alignment: dict = field(default_factory=dict)
 
 
 def plan_eval(store: ResultStore, methods: list[MethodSpec], suites: list[str], tasks: list[int] | None,
@@ -72,4 +74,7 @@ def run_eval(db: str, methods: list[MethodSpec], suites: list[str], tasks: list[
         summary.trials = {m: len(v) for m, v in per.items()}
         summary.verifier_errors = {m: sum(r.verifier_errors for r in v) for m, v in per.items()}
         summary.verifier_unavailable = {m: sum(r.verifier_unavailable for r in v) for m, v in per.items()}
+        audited = {m: sum(r.subplans_audited for r in v) for m, v in per.items()}
+        summary.alignment = {m: (round(sum(r.subplans_aligned for r in v) / audited[m], 4) if audited[m] else None)
+                             for m, v in per.items()}
     return summary

@@ -18,7 +18,8 @@ from pathlib import Path
 
 from seal.errors import InvalidInput
 
-SCHEMA_VERSION = 3  # v2 added trials.policy_s, v3 trials.verifier_errors and verifier_unavailable
+SCHEMA_VERSION = 4  # v2 added trials.policy_s, v3 trials.verifier_errors and verifier_unavailable,
+# v4 trials.subplans_audited and subplans_aligned
 MAGIC = "seal-results"
 
 _SCHEMA = """
@@ -52,6 +53,8 @@ CREATE TABLE trials (
     fallbacks INTEGER NOT NULL,
     verifier_errors INTEGER NOT NULL DEFAULT 0,
     verifier_unavailable INTEGER NOT NULL DEFAULT 0,
+    subplans_audited INTEGER NOT NULL DEFAULT 0,
+    subplans_aligned INTEGER NOT NULL DEFAULT 0,
     subplans_json TEXT NOT NULL,
     goal_status_json TEXT NOT NULL,
     trace_path TEXT NOT NULL,
@@ -92,6 +95,8 @@ class TrialRow:
     fallbacks: int = 0
     verifier_errors: int = 0  # verifications that got no answer (transient errors past their retries)
     verifier_unavailable: bool = False  # in most rounds no verification got an answer: mostly unverified
+    subplans_audited: int = 0  # committed sub-plans the oracle could ground (the alignment audit)
+    subplans_aligned: int = 0  # of those, the ones whose executed chunks achieved the sub-plan
     subplans: list = field(default_factory=list)
     goal_status: dict = field(default_factory=dict)
     trace_path: str = ""
@@ -169,6 +174,9 @@ class ResultStore:
             if version < 3:
                 self._db.execute("ALTER TABLE trials ADD COLUMN verifier_errors INTEGER NOT NULL DEFAULT 0")
                 self._db.execute("ALTER TABLE trials ADD COLUMN verifier_unavailable INTEGER NOT NULL DEFAULT 0")
+            if version < 4:  # older trials were not audited: 0 of 0, shown as no figure
+                self._db.execute("ALTER TABLE trials ADD COLUMN subplans_audited INTEGER NOT NULL DEFAULT 0")
+                self._db.execute("ALTER TABLE trials ADD COLUMN subplans_aligned INTEGER NOT NULL DEFAULT 0")
             self._db.execute("UPDATE seal_meta SET value = ? WHERE key = 'schema_version'", (str(SCHEMA_VERSION),))
 
     def close(self) -> None:

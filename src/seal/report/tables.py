@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 from seal.report.data import Cell, MethodInfo, ReportData
 from seal.report.paper import PAPER_NAMES, TABLES, PaperResults, paper_method_for
-from seal.report.stats import PairedDifference, paired_difference
+from seal.report.stats import PairedDifference, paired_difference, wilson
 
 
 # ---- display model shared by Markdown and HTML ---------------------------------------------------
@@ -294,6 +294,52 @@ def runtime_csv(rows: list[RuntimeRow]) -> str:
                     _num(r.per_trial(r.input_tokens), 1), _num(r.per_trial(r.output_tokens), 1),
                     _num(r.per_trial(r.cost_usd), 6), round(r.cost_usd, 6), _num(r.per_trial(r.fallbacks), 3),
                     r.verifier_errors, r.unverified_trials] for r in rows])
+
+
+# ---- alignment ------------------------------------------------------------------------------------
+@dataclass
+class AlignmentRow:
+    """The reasoning-action alignment of one method configuration: of the sub-plans it committed
+    (and the oracle could ground), the share whose executed chunks achieved the sub-plan."""
+
+    method: MethodInfo
+    trials: int
+    audited: int
+    aligned: int
+
+    @property
+    def rate(self) -> float:
+        return self.aligned / self.audited if self.audited else math.nan
+
+
+def alignment_rows(data: ReportData) -> list[AlignmentRow]:
+    out = []
+    for m in data.methods:
+        rs = [r for r in data.rows if r.config_hash == m.config_hash]
+        out.append(AlignmentRow(m, len(rs), sum(r.subplans_audited for r in rs), sum(r.subplans_aligned for r in rs)))
+    return out
+
+
+def alignment_display(rows: list[AlignmentRow]) -> Table:
+    headers = ["Method", "K", "trials", "sub-plans audited", "achieved", "alignment rate", "95% CI"]
+    body = []
+    for r in rows:
+        lo, hi = wilson(r.aligned, r.audited) if r.audited else (math.nan, math.nan)
+        body.append([r.method.label, str(r.method.k), str(r.trials), str(r.audited), str(r.aligned),
+                     _fmt(100 * r.rate, 1) + ("%" if r.audited else ""),
+                     f"{_fmt(100 * lo, 0)}–{_fmt(100 * hi, 0)}%" if r.audited else "–"])
+    notes = [("After every commit, the oracle grounds the sub-plan the policy wrote to goal atoms and checks them "
+              "in the committed state: a sub-plan is achieved when its executed chunks did what it says. The audit "
+              "runs for every method and never influences a decision. Sub-plans the oracle cannot ground, and "
+              "policies that write none (the non-reasoning twin), are not counted.")]
+    return Table("Reasoning-action alignment (committed sub-plans achieved, by simulator truth)", headers, body,
+                 set(), notes, left=1)
+
+
+def alignment_csv(rows: list[AlignmentRow]) -> str:
+    return to_csv(["method", "config_hash", "k", "trials", "subplans_audited", "subplans_aligned", "alignment_rate"],
+                  [[r.method.label, r.method.config_hash, r.method.k, r.trials, r.audited, r.aligned,
+                    _num(r.rate, 4)] for r in rows])
 
 
 def _fmt(x: float, digits: int) -> str:

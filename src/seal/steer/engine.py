@@ -48,6 +48,7 @@ from seal.steer.method import MODES, VALUE_GOALS
 from seal.steer.selection import METHODS, Candidate, Check, Subplan, selection_for
 from seal.steer.trace import Trace
 from seal.verify.base import Verdict, VerifyRequest
+from seal.verify.oracle import ground
 
 __all__ = ["METHODS", "Candidate", "SteerConfig", "SteerResult", "Steerer"]
 
@@ -102,6 +103,9 @@ class SteerResult:
     verifier_errors: int = 0  # verifications that got no answer (transient errors past their retries)
     verifier_unavailable: bool = False  # in most rounds that asked the verifier, it never answered
     divergence: list[float] = field(default_factory=list)  # replay mode: per commit, max |qpos| gap
+    # per committed sub-plan: did the executed chunks achieve it by simulator truth? (True/False; None =
+    # the sub-plan names nothing the oracle can ground). Measured for every method, never used to decide.
+    aligned: list = field(default_factory=list)
     # wall time of the loop's stages; predict_s includes the workers' physics and rendering, whose
     # own (summed) times physics_cpu_s / render_cpu_s say how predict_s splits between the two
     timing: dict = field(default_factory=lambda: {"sampling_s": 0.0, "predict_s": 0.0, "verify_wait_s": 0.0,
@@ -182,7 +186,7 @@ class Steerer:
                 if winner is None:  # every candidate hit a simulator error
                     result.sim_error = True
                     break
-                committed = self._commit(winner, committed, result)
+                committed = self._commit(winner, committed, result, reasoning)
                 task_done = pool.check([str(a) for a in self._goal_atoms()], slots=[0])[0]
                 if all(task_done.values()):
                     break
@@ -352,7 +356,7 @@ class Steerer:
         self._result.cost_usd += verdict.cost_usd
 
     # ---- commit ----------------------------------------------------------------------------
-    def _commit(self, winner: Candidate, committed: Snapshot, result: SteerResult) -> Snapshot:
+    def _commit(self, winner: Candidate, committed: Snapshot, result: SteerResult, reasoning) -> Snapshot:
         actions = np.concatenate(winner.actions) if winner.actions else np.zeros((0, 7))
         result.executed_actions.extend(actions.tolist())
         target = winner.snapshot
@@ -366,9 +370,22 @@ class Steerer:
             result.divergence.append(gap)
             target = real
         self.pool.sync(target)
+        aligned = self._aligned(reasoning)
+        result.aligned.append(aligned)
         self.emit("commit", slot=winner.slot, round=winner.round, steps=target.steps, snapshot=target.id,
-                  ended_by=winner.ended_by, verdict=_verdict_dict(winner.verdict))
+                  ended_by=winner.ended_by, verdict=_verdict_dict(winner.verdict), aligned=aligned)
         return target
+
+    def _aligned(self, reasoning) -> bool | None:
+        """The seed's reasoning-action alignment, made measurable: do the goal atoms the oracle grounds
+        the sub-plan to hold in the committed state (slot 0)? An audit for every method, verified or
+        not; its answer never reaches the selection."""
+        plans = tuple(reasoning.plans)
+        index = plans.index(reasoning.now) if reasoning.now in plans else None
+        atoms = [str(a) for a in ground(reasoning.now, plans, self._objects, index).atoms]
+        if not atoms:
+            return None
+        return all(self.pool.check(atoms, slots=[0])[0].values())
 
     # ---- small helpers ------------------------------------------------------------------------
     @property
