@@ -247,6 +247,20 @@ def test_training_resumes_exactly(annotated, tok, tmp_path):
     assert manifest["step"] == 6 and len(manifest["heldout_episodes"]) == 1
 
 
+def test_failed_demonstrations_are_not_imitated(tmp_path, tok):
+    root = tmp_path
+    make_v21(root / "ds", [40, 35, 45])
+    lines = (root / "ds/meta/episodes.jsonl").read_text().splitlines()
+    records = [json.loads(line) for line in lines]
+    records[1].setdefault("meta", {})["success"] = False  # as `seal demos record --keep-failures` marks one
+    (root / "ds/meta/episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+    annotate_dataset(root / "ds", root / "ann", make_annotator("offline"))
+    _train(root, tok, root / "run", 1)
+    _, _, manifest = load_checkpoint(root / "run/checkpoint")
+    assert manifest["failed_demos_left_out"] == 1 and manifest["train_episodes"] + len(manifest["heldout_episodes"]) == 2
+    assert 1 not in manifest["heldout_episodes"]
+
+
 def test_train_vla_command_and_bench(annotated, tmp_path, capsys):
     (tmp_path / "tiny.json").write_text(json.dumps({k: v for k, v in tiny(train_tokenizer(project_texts())).to_dict()
                                                      .items() if k != "vocab_size"}))

@@ -361,6 +361,11 @@ def _resume_dir(run: Path) -> Path | None:
 
 
 # ------------------------------------------------------------------------------------------ training
+def _succeeded(meta: dict) -> bool:
+    """A demonstration's own success flag; datasets that carry none (other recorders) count as successes."""
+    return bool(meta.get("meta", meta).get("success", True))
+
+
 
 
 def train_vla(dataset: Path | None, annotations: Path, out: Path, cfg: TrainConfig, model_cfg: VLAConfig,
@@ -376,9 +381,13 @@ def train_vla(dataset: Path | None, annotations: Path, out: Path, cfg: TrainConf
     say = progress or (lambda *a, **k: None)
     torch.set_num_threads(cfg.threads)
     ann = AnnotatedDataset(Path(annotations), Path(dataset) if dataset else None)
-    episodes = ann.episodes
+    # Imitation learns from demonstrations that reached the goal; failures recorded for the value
+    # function (`seal demos record --keep-failures`) are left out here.
+    annotated = ann.episodes
+    episodes = [e for e in annotated if _succeeded(ann.source.episode_meta(e))]
     if not episodes:
-        raise InvalidInput(f"{annotations} has no successfully annotated episode")
+        raise InvalidInput(f"{annotations} has no successfully annotated episode of a successful demonstration "
+                           f"({len(annotated)} annotated, none marked success)")
     train_eps, held_eps = split_episodes(len(episodes), cfg.holdout, cfg.seed)
     train_eps, held_eps = [episodes[i] for i in train_eps], [episodes[i] for i in held_eps]
 
@@ -418,6 +427,7 @@ def train_vla(dataset: Path | None, annotations: Path, out: Path, cfg: TrainConf
         (out / METRICS).unlink(missing_ok=True)
     manifest = {"command": command, "dataset": str(Path(ann.source.root).resolve()),
                 "annotations": str(Path(annotations).resolve()), "train_episodes": len(train_eps),
+                "failed_demos_left_out": len(annotated) - len(episodes),
                 "heldout_episodes": held_eps, "train_frames": n_train, "code_version": _code_version(),
                 "train_config": asdict(cfg)}
     held = _heldout_starts(frames, len(train_eps), cfg.eval_samples)
