@@ -160,16 +160,18 @@ def test_seal_serve_refuses_bad_policies_before_listening(tmp_path, capsys):
 # ---------------------------------------------------------------------------- the V-GPS baseline path
 
 
-def test_value_method_with_the_vla_twin(ckpts, tmp_path):
-    """Twin + V-GPS: the twin reads its cameras at its own size, the Q-function scores openpi's
-    224-px view of the same state, and each executed chunk is the best-scored one."""
+@pytest.mark.parametrize("value_size", [224, SIZE])
+def test_value_method_with_the_vla_twin(ckpts, tmp_path, value_size):
+    """Twin + V-GPS: the twin reads its cameras at its own size, the Q-function scores the view it was
+    trained on (openpi's 224 px, or the twin's own size when trained on the twin's data), and each
+    executed chunk is the best-scored one."""
     from test_train_value import _bandit
 
     from seal.steer.build import build_episode
     from seal.train.vgps import IQLConfig, VGPSScorer, train_value
 
     torch.manual_seed(0)
-    train_value(_bandit(64, 0), tmp_path / "vgps", IQLConfig(steps=2, batch_size=16, hidden=16))
+    train_value(_bandit(64, 0), tmp_path / "vgps", IQLConfig(steps=2, batch_size=16, hidden=16), image_size=value_size)
     spec = MethodSpec(method="value", k=3, policy=f"vla:{ckpts['twin']}", value_ckpt=str(tmp_path / "vgps"))
     seen: dict[str, list] = {"policy": [], "scorer": []}
 
@@ -189,7 +191,7 @@ def test_value_method_with_the_vla_twin(ckpts, tmp_path):
         result = episode.run(0)
     assert result.steps == 15 and not result.sim_error
     assert set(seen["policy"]) == {(SIZE, SIZE, 3)}  # rendered at the model's size
-    assert len(seen["scorer"]) == 3 and {s for s, _, _ in seen["scorer"]} == {(224, 224, 3)}
+    assert len(seen["scorer"]) == 3 and {s for s, _, _ in seen["scorer"]} == {(value_size, value_size, 3)}
     executed = np.asarray(result.executed_actions)
     for i, (_, chunks, scores) in enumerate(seen["scorer"]):
         assert chunks.shape == (3, 16, 7)

@@ -121,3 +121,52 @@ def test_train_value_command_on_a_dataset(tmp_path, capsys):
     summary = json.loads((tmp_path / "run/summary.json").read_text())
     assert len(summary["heldout_episodes"]) == 1 and len(summary["train_episodes"]) == 2
     assert (tmp_path / "run/checkpoint.pt").is_file()
+
+
+def test_value_function_from_a_64px_dataset_scores_the_policy_view(tmp_path):
+    """A VLA recorded at 64 px: the value function trains on those frames (area-resized to 56) and
+    asks the loop for 64-px views, so the policy's own renders serve it."""
+    from PIL import Image
+
+    from seal.datasets.lerobot import LeRobotWriter
+    from seal.sim.observation import Observation
+    from seal.steer.selection import ValueSelection
+    from seal.train.transitions import downsample
+
+    def small(images):
+        return np.stack([np.asarray(Image.fromarray(im).resize((64, 64), Image.BOX)) for im in images])
+
+    episodes = [synthetic_episode(T, seed=i) for i, T in enumerate([30, 25])]
+    for ep in episodes:
+        ep.agent_images, ep.wrist_images = small(ep.agent_images), small(ep.wrist_images)
+    with LeRobotWriter(tmp_path / "ds", fps=20, image_size=64) as w:
+        for ep in episodes:
+            w.add(ep)
+    frame = episodes[0].agent_images[:1]
+    expected = np.asarray(Image.fromarray(frame[0]).resize((56, 56), Image.BOX))
+    assert np.array_equal(downsample(frame)[0], expected)
+    assert downsample(np.zeros((2, 224, 224, 3), np.uint8)).shape == (2, 56, 56, 3)  # openpi's view: pooled
+    with pytest.raises(InvalidInput, match="square images"):
+        downsample(np.zeros((1, 64, 48, 3), np.uint8))
+
+    assert main(["train", "value", "--dataset", str(tmp_path / "ds"), "--out", str(tmp_path / "run"),
+                 "--steps", "4", "--batch-size", "8", "--holdout", "0"]) == 0
+    assert json.loads((tmp_path / "run/summary.json").read_text())["image_size"] == 64
+    scorer = VGPSScorer.load(tmp_path / "run")
+    assert scorer.image_size == 64
+    obs64 = Observation(state=np.zeros(8, np.float32), prompt="p", agent=episodes[0].agent_images[0])
+    assert scorer.score(obs64, np.zeros((3, 5, 7), np.float32), "put the bowl on the plate").shape == (3,)
+
+    class Loop:  # what `_scorer_view` reads of the steering loop
+        scorer_needs_images = True
+        asked = []
+
+        def _observe(self, slot, *, images, atoms):
+            self.asked.append(images)
+            return Observation(state=np.zeros(8, np.float32), prompt="p", agent=np.zeros((images, images, 3), np.uint8))
+
+    loop = Loop()
+    loop.scorer = scorer
+    assert ValueSelection._scorer_view(loop, obs64) is obs64 and loop.asked == []  # the policy's render serves
+    obs224 = Observation(state=np.zeros(8, np.float32), prompt="p", agent=np.zeros((224, 224, 3), np.uint8))
+    assert ValueSelection._scorer_view(loop, obs224).agent.shape == (64, 64, 3) and loop.asked == [64]

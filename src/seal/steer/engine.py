@@ -170,7 +170,7 @@ class Steerer:
                 judge_images = self.selection.judge_needs_images(self)
                 obs = self._observe(0, images=self.policy_images or judge_images, atoms=self.atoms)
                 first_agent = obs.agent
-                if judge_images and self.policy_images is not True and self.policy_images:
+                if judge_images and self.selection.verifies and self.policy_images is not True and self.policy_images:
                     # the policy's small view is not what a VLM judges: its "before" image at 224 too
                     first_agent = self._observe(0, images=True, atoms=None).agent
                 reasoning = self.policy.reason(obs)

@@ -18,6 +18,7 @@ from seal.sim.observation import Observation
 
 class ChunkScorer(Protocol):
     needs_images: bool  # whether observations passed to ``score`` must carry camera images
+    image_size: int  # the agent view's side it scores (224: openpi's view; a policy's own size, e.g. 64)
 
     def score(self, obs: Observation, chunks: np.ndarray, goal: str) -> np.ndarray:
         """``chunks`` is (K, horizon, 7); returns K scores, higher is better."""

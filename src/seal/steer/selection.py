@@ -192,7 +192,7 @@ class ValueSelection(Selection):
             result.timing["sampling_s"] += time.perf_counter() - t0
             t0 = time.perf_counter()
             chunk = np.clip(chunks[best].actions[:ACTION_HORIZON], -1.0, 1.0)
-            res = loop.pool.step({0: chunk}, observe=True, images=loop.policy_images or loop.scorer_needs_images,
+            res = loop.pool.step({0: chunk}, observe=True, images=loop.policy_images or self._scorer_images(loop),
                                  privileged_atoms=loop.atoms, stop_on_success=True)[0]
             if res.ok and not res.success:
                 judged = self._scorer_view(loop, res.observation)
@@ -213,14 +213,23 @@ class ValueSelection(Selection):
         return c
 
     @staticmethod
+    def _scorer_images(loop: "Steerer") -> bool | int:
+        """The ``images`` argument that renders what the scorer looks at (False: nothing)."""
+        if not loop.scorer_needs_images:
+            return False
+        size = getattr(loop.scorer, "image_size", IMAGE_SIZE)
+        return True if size == IMAGE_SIZE else size
+
+    @staticmethod
     def _scorer_view(loop: "Steerer", obs: Observation, agent: "np.ndarray | None" = None) -> Observation:
-        """What the Q-function scores: openpi's 224-px agent view, which it was trained on. A
-        policy that reads its cameras at its own size (a VLA at 64 px) gets its own renders, and
-        the scorer a 224-px view of the same state (``agent`` when the caller has it already)."""
-        if not loop.scorer_needs_images or (obs.agent is not None and obs.agent.shape[0] == IMAGE_SIZE):
+        """What the Q-function scores: the agent view at the size it was trained on. When the policy
+        reads its cameras at that size (a VLA and a value function both from 64-px data) its own
+        renders serve; otherwise one more render of the same state (``agent`` when the caller has it)."""
+        size = getattr(loop.scorer, "image_size", IMAGE_SIZE)
+        if not loop.scorer_needs_images or (obs.agent is not None and obs.agent.shape[0] == size):
             return obs
-        if agent is None or agent.shape[0] != IMAGE_SIZE:
-            agent = loop._observe(0, images=True, atoms=None).agent
+        if agent is None or agent.shape[0] != size:
+            agent = loop._observe(0, images=ValueSelection._scorer_images(loop), atoms=None).agent
         return Observation(state=obs.state, prompt=obs.prompt, agent=agent)
 
 

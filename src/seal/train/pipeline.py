@@ -35,15 +35,17 @@ def train_value_on_dataset(dataset: Path, out: Path, *, goals: str, holdout: flo
 
     if goals not in GOAL_KINDS:
         raise InvalidInput(f"unknown --goals {goals!r}; valid: {', '.join(GOAL_KINDS)}")
-    n = open_dataset(dataset).num_episodes
+    reader = open_dataset(dataset)
+    n = reader.num_episodes
     train_eps, held_eps = split_episodes(n, holdout, cfg.seed)
     say = progress or (lambda *a, **k: None)
     say("load", 0, len(train_eps) + len(held_eps))
     train = load_transitions(dataset, goals, train_eps, progress=lambda i, total: say("load", i, total + len(held_eps)))
     held = load_transitions(dataset, goals, held_eps) if held_eps else None
     say("train", 0, cfg.steps)
-    last = train_value(train, out, cfg, progress=lambda step, m: say("train", step, cfg.steps, m))
-    summary = {"dataset": str(dataset), "goals": goals, "config": asdict(cfg), "train_episodes": train_eps,
+    last = train_value(train, out, cfg, progress=lambda step, m: say("train", step, cfg.steps, m),
+                       image_size=reader.image_size)
+    summary = {"dataset": str(dataset), "image_size": reader.image_size, "goals": goals, "config": asdict(cfg), "train_episodes": train_eps,
                "heldout_episodes": held_eps, "train_transitions": len(train), "last": last,
                "reward_rate": round(float(train.reward.mean()), 4)}
     if held is not None:

@@ -26,12 +26,23 @@ GOAL_KINDS = ("task", "subplan", "both")
 
 
 def downsample(images: np.ndarray) -> np.ndarray:
-    """(..., 224, 224, 3) uint8 -> (..., 56, 56, 3) uint8 by 4x4 mean pooling."""
+    """(..., S, S, 3) uint8 -> (..., 56, 56, 3) uint8, the value function's input.
+
+    From openpi's 224-px view: 4x4 mean pooling. From a policy-sized view (a VLA recorded at 64 px):
+    an area (box-filter) resize, so the value function trains and scores on what the policy sees."""
     *lead, h, w, c = images.shape
-    if (h, w) != (IMAGE_SIDE * 4, IMAGE_SIDE * 4):
-        raise InvalidInput(f"expected {IMAGE_SIDE * 4}x{IMAGE_SIDE * 4} images (openpi's LIBERO size), got {h}x{w}")
-    pooled = images.reshape(*lead, IMAGE_SIDE, 4, IMAGE_SIDE, 4, c).mean(axis=(-4, -2))
-    return pooled.round().astype(np.uint8)
+    if h != w:
+        raise InvalidInput(f"expected square images, got {h}x{w}")
+    if h % IMAGE_SIDE == 0:
+        f = h // IMAGE_SIDE
+        pooled = images.reshape(*lead, IMAGE_SIDE, f, IMAGE_SIDE, f, c).mean(axis=(-4, -2))
+        return pooled.round().astype(np.uint8)
+    from PIL import Image
+
+    flat = images.reshape(-1, h, w, c)
+    how = Image.BOX if h > IMAGE_SIDE else Image.BILINEAR  # area when shrinking; a smaller view is stretched
+    out = np.stack([np.asarray(Image.fromarray(im).resize((IMAGE_SIDE, IMAGE_SIDE), how)) for im in flat])
+    return out.reshape(*lead, IMAGE_SIDE, IMAGE_SIDE, c)
 
 
 def chunk_of(actions: np.ndarray) -> np.ndarray:

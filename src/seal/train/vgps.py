@@ -176,8 +176,13 @@ def data_fingerprint(data: Transitions) -> str:
     return h.hexdigest()[:12]
 
 
-def train_value(data: Transitions, out: Path, cfg: IQLConfig, *, progress=None, threads: int | None = 1) -> dict:
+def train_value(data: Transitions, out: Path, cfg: IQLConfig, *, progress=None, threads: int | None = 1,
+                image_size: int = 224) -> dict:
     """Train (or continue training) a value function on ``data``; returns the last metrics.
+
+    ``image_size``: the side of the camera frames the transitions were made from (224: openpi's
+    view; 64: a 64-px policy's). It is saved with the weights, so the scorer asks the loop for the
+    same view.
 
     ``threads``: torch's intra-op threads. One by default: these small batches gain little from
     more, and on a shared 2-core machine oversubscribed threads made training ~10x slower.
@@ -223,7 +228,7 @@ def train_value(data: Transitions, out: Path, cfg: IQLConfig, *, progress=None, 
                 log.write(json.dumps(last) + "\n")
                 log.flush()
             if step % cfg.save_every == 0 or step == cfg.steps:
-                _save(ckpt_path, {"config": asdict(cfg), "data": fingerprint, "step": step,
+                _save(ckpt_path, {"config": asdict(cfg), "data": fingerprint, "step": step, "image_size": image_size,
                                   "nets": nets.state_dict(), "target": target.state_dict(), "opt": opt.state_dict(),
                                   "rng": rng.bit_generator.state, "gen": gen.get_state()})
             if progress:
@@ -242,9 +247,10 @@ class VGPSScorer:
 
     needs_images = True
 
-    def __init__(self, nets: ValueNets, source: str = ""):
+    def __init__(self, nets: ValueNets, source: str = "", image_size: int = 224):
         self.nets = nets.eval()
         self.source = source
+        self.image_size = image_size  # the agent view it was trained on (checkpoints before this field: 224)
 
     @classmethod
     def load(cls, path: str | Path) -> VGPSScorer:
@@ -256,7 +262,7 @@ class VGPSScorer:
         ckpt = torch.load(path, weights_only=False)
         nets = ValueNets(IQLConfig(**ckpt["config"]))
         nets.load_state_dict(ckpt["nets"])
-        return cls(nets, source=str(path))
+        return cls(nets, source=str(path), image_size=int(ckpt.get("image_size", 224)))
 
     @torch.no_grad()
     def score(self, obs, chunks: np.ndarray, goal: str) -> np.ndarray:
