@@ -277,7 +277,8 @@ def test_train_vla_command_and_bench(annotated, tmp_path, capsys):
                  "--trials", "1"]) == 0
     bench = json.loads(capsys.readouterr().out)
     for key in ("params", "prefix_ms", "reason_ms", "sample_ms_k1", "sample_ms_k10", "sample_ms_k10_nocache",
-                "train_samples_per_s", "subplan_accuracy", "action_mse"):
+                "sample_ms_k10_distinct_obs", "sample_ms_k1_2threads", "train_samples_per_s", "subplan_accuracy",
+                "action_mse"):
         assert key in bench, key
     assert bench["weights"] == "checkpoint" and bench["reason_ms"] is None and bench["action_mse"] >= 0
 

@@ -12,6 +12,9 @@
 - ``sample_ms_k10_nocache``: the same 10 chunks as 10 independent passes (prefix, reasoning and
   sampling each time), what a policy without a shared prefix pays;
 - ``sample_ms_k1_bf16`` / ``sample_ms_k10_bf16``: the same calls with the policy's bf16 autocast on;
+- ``sample_ms_k10_distinct_obs``: 10 rows with 10 different observations, as after a round's first
+  chunk (every candidate in its own world): 10 prefixes encoded in one batch;
+- ``sample_ms_k1_2threads``: ``sample_ms_k1`` with two torch threads instead of the policy's one;
 - ``train_samples_per_s``: training throughput at batch 32 with the default `TrainConfig`
   (bf16 autocast, one thread), on a synthetic batch of the real shapes;
 - ``subplan_accuracy`` / ``action_mse``: `seal.train.vla.evaluate` on held-out episodes (the
@@ -158,11 +161,30 @@ def run(args) -> dict:
                 policy.bf16 = False
         return run
 
+    # after a round's first chunk every candidate has its own observation: K prefixes, one batch
+    distinct = [Observation(state=rng.normal(size=8), prompt=instruction, agent=image(), wrist=image())
+                for _ in range(10)]
+
+    def act_distinct():
+        policy.begin(10)
+        return policy.act(distinct, reasoning)
+
+    def two_threads(fn):  # the policy's default is one intra-op thread; this is what two cost
+        def run():
+            torch.set_num_threads(2)
+            try:
+                return fn()
+            finally:
+                torch.set_num_threads(1)
+        return run
+
     # interleaved, so that a load change on this shared machine hits all of them alike
-    k1, k10, k10_nocache, k1_bf16, k10_bf16 = _interleaved_ms(
-        [lambda: act(1), lambda: act(10), lambda: nocache(10), bf16(lambda: act(1)), bf16(lambda: act(10))], reps)
+    k1, k10, k10_nocache, k1_bf16, k10_bf16, k10_distinct, k1_2t = _interleaved_ms(
+        [lambda: act(1), lambda: act(10), lambda: nocache(10), bf16(lambda: act(1)), bf16(lambda: act(10)),
+         act_distinct, two_threads(lambda: act(1))], reps)
     out |= {"sample_ms_k1": k1, "sample_ms_k10": k10, "sample_ms_k10_nocache": k10_nocache,
-            "sample_ms_k1_bf16": k1_bf16, "sample_ms_k10_bf16": k10_bf16}
+            "sample_ms_k1_bf16": k1_bf16, "sample_ms_k10_bf16": k10_bf16,
+            "sample_ms_k10_distinct_obs": k10_distinct, "sample_ms_k1_2threads": k1_2t}
     out["k10_over_k1"] = round(out["sample_ms_k10"] / out["sample_ms_k1"], 3)
     out["k10_over_k1_bf16"] = round(out["sample_ms_k10_bf16"] / out["sample_ms_k1_bf16"], 3)
 

@@ -88,7 +88,12 @@ class VLAPolicy:
 
     @classmethod
     def load(cls, path: str | Path = "", *, seed: int = 0, device: str = "cpu", planner=None,
-             instruction: str = "") -> VLAPolicy:
+             instruction: str = "", threads: int | None = 1) -> VLAPolicy:
+        """``threads``: torch's intra-op threads (process-wide; None leaves them). One by default: on
+        the 2-core machine shared with simulator workers, two threads cost many times more per chunk
+        (`seal bench vla`: sample_ms_k1_2threads against sample_ms_k1, docs/performance.md)."""
+        if threads is not None and device == "cpu":
+            torch.set_num_threads(int(threads))
         where = resolve_checkpoint(str(path))
         model, tok, manifest = load_checkpoint(where, device=device)
         return cls(model, tok, seed=seed, planner=planner, instruction=instruction, source=str(where),
