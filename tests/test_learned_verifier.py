@@ -171,3 +171,27 @@ def test_several_collections_train_as_one_and_a_repeated_one_is_refused(tmp_path
                  "--batch-size", "8", "--image-size", "32", "--holdout-tasks", "libero_90/9"]) == 0
     manifest = json.loads((tmp_path / "run" / "manifest.json").read_text())
     assert manifest["data"] == f"{a},{b}" and manifest["split"]["heldout_tasks"] == 10
+
+
+def test_photometric_jitter_keeps_the_front_pair_together(data, tmp_path):
+    from seal.train.verifier import _tensors
+
+    from seal.verify.learned import WordVocab
+
+    arrays, _ = load_arrays(data, 32)
+    vocab = WordVocab.build(arrays.subplan)
+    idx = np.arange(4)
+    plain = _tensors(arrays, idx, vocab, 8)
+    photo = ((np.full(4, 1.2), np.full(4, 0.8)), (np.full(4, 0.9), np.full(4, 1.1)))
+    jittered = _tensors(arrays, idx, vocab, 8, photo=photo)
+    for view in range(3):
+        assert not torch.equal(plain[view], jittered[view]) and 0 <= jittered[view].min() <= jittered[view].max() <= 1
+    # the same factors on both front views: where neither clips, their difference only scales
+    mean0, mean1 = plain[0].mean(dim=(1, 2, 3), keepdim=True), plain[1].mean(dim=(1, 2, 3), keepdim=True)
+    expect0 = ((plain[0] - mean0) * 0.8 + mean0) * 1.2
+    assert torch.allclose(jittered[0], expect0.clamp(0, 1), atol=1e-6)
+    expect1 = ((plain[1] - mean1) * 0.8 + mean1) * 1.2
+    assert torch.allclose(jittered[1], expect1.clamp(0, 1), atol=1e-6)
+    cfg = VerifierTrainConfig(steps=3, batch_size=8, image_size=32, holdout_inits=0.25, jitter=0.2)
+    summary = train_verifier(data, tmp_path / "jit", cfg)
+    assert summary["step"] == 3

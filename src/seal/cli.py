@@ -155,6 +155,7 @@ def _cmd_train_verifier(args) -> int:
     holdout = tuple(t.strip() for t in (args.holdout_tasks or "").split(",") if t.strip())
     cfg = VerifierTrainConfig(steps=args.steps or 2000, batch_size=args.batch_size or 64, lr=args.lr or 1e-3,
                               image_size=args.image_size, holdout_tasks=holdout, holdout_inits=args.holdout_inits,
+                              jitter=args.jitter, weight_decay=args.weight_decay,
                               seed=0 if args.seed is None else args.seed, save_every_s=args.save_every_min * 60.0)
     with _stage_bars({"load": "decoding images", "train": "training"}, lambda info: info or "") as progress:
         summary = train_verifier([Path(d) for d in args.data.split(",") if d], Path(args.out), cfg, progress=progress, threads=args.threads or 1)
@@ -503,6 +504,9 @@ def _add_train(sub) -> None:
     ver.add_argument("--holdout-inits", type=float, default=0.2,
                      help="fraction of each other task's init states held out")
     ver.add_argument("--image-size", type=int, default=96, help="model input size in pixels")
+    ver.add_argument("--jitter", type=float, default=0.0,
+                     help="augmentation: brightness/contrast factors in [1-j, 1+j] per case (default 0: off)")
+    ver.add_argument("--weight-decay", type=float, default=1e-4, help="AdamW weight decay (default 1e-4)")
     ver.add_argument("--save-every-min", type=float, default=5.0, help="minutes between checkpoints")
     train.set_defaults(func=_cmd_train)
 

@@ -57,6 +57,9 @@ class VerifierTrainConfig:
     holdout_inits: float = 0.2  # fraction of each remaining task's init states held out
     seed: int = 0
     shift: int = 4  # augmentation: random translation in pixels (at image_size)
+    # augmentation: per-case brightness and contrast factors in [1 - jitter, 1 + jitter], one pair for
+    # both front views (their difference is the evidence) and one for the wrist view
+    jitter: float = 0.0
     log_every: int = 20
     eval_every: int = 200
     save_every_s: float = 300.0
@@ -193,13 +196,16 @@ def evaluate(net, arrays, idx, vocab, max_words, threshold) -> dict | None:
 
 
 # ---- training ---------------------------------------------------------------------------------------------
-def _tensors(arrays: CaseArrays, idx: np.ndarray, vocab: WordVocab, max_words: int, shifts=None):
+def _tensors(arrays: CaseArrays, idx: np.ndarray, vocab: WordVocab, max_words: int, shifts=None, photo=None):
     views = [torch.from_numpy(a[idx]).float().div_(255.0) for a in (arrays.first, arrays.final, arrays.wrist)]
     if shifts is not None:  # one translation for both front views (keeps their difference), one for the wrist
         (ay, ax), (wy, wx) = shifts
         views[0] = _shift(views[0], ay, ax)
         views[1] = _shift(views[1], ay, ax)
         views[2] = _shift(views[2], wy, wx)
+    if photo is not None:  # (brightness, contrast) factors: front pair, wrist
+        (ab, ac), (wb, wc) = photo
+        views = [_photometric(v, b, c) for v, b, c in zip(views, (ab, ab, wb), (ac, ac, wc))]
     sub = torch.from_numpy(vocab.encode([arrays.subplan[i] for i in idx], max_words))
     ctx = torch.from_numpy(vocab.encode([arrays.context[i] for i in idx], max_words))
     return (*views, sub, ctx)
@@ -214,6 +220,14 @@ def _shift(x, dy: np.ndarray, dx: np.ndarray):
     padded = F.pad(x, (pad, pad, pad, pad), mode="replicate")
     return torch.stack([padded[i, :, pad + dy[i]:pad + dy[i] + s, pad + dx[i]:pad + dx[i] + s]
                         for i in range(len(x))])
+
+
+def _photometric(x, brightness: np.ndarray, contrast: np.ndarray):
+    """Per-sample contrast about the image mean, then brightness; clipped to [0, 1]."""
+    b = torch.as_tensor(brightness, dtype=x.dtype)[:, None, None, None]
+    c = torch.as_tensor(contrast, dtype=x.dtype)[:, None, None, None]
+    mean = x.mean(dim=(1, 2, 3), keepdim=True)
+    return ((x - mean) * c + mean).mul_(b).clamp_(0.0, 1.0)
 
 
 def _save_state(out: Path, obj: dict) -> None:
@@ -283,7 +297,9 @@ def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig,
             shifts = (tuple(rng.integers(-cfg.shift, cfg.shift + 1, (2, b))),
                       tuple(rng.integers(-cfg.shift, cfg.shift + 1, (2, b)))) if cfg.shift else None
             torch.manual_seed(cfg.seed * 1_000_003 + step)
-            logits = net(*_tensors(arrays, idx, vocab, max_words, shifts))
+            photo = (tuple(rng.uniform(1 - cfg.jitter, 1 + cfg.jitter, (2, b))),
+                     tuple(rng.uniform(1 - cfg.jitter, 1 + cfg.jitter, (2, b)))) if cfg.jitter else None
+            logits = net(*_tensors(arrays, idx, vocab, max_words, shifts, photo))
             loss = F.binary_cross_entropy_with_logits(logits, torch.from_numpy(arrays.label[idx]))
             opt.zero_grad()
             loss.backward()
