@@ -97,7 +97,8 @@ def test_bench_render_attributes_the_fast_modes_error_to_meshes(capsys):
     assert task["faces_fast"] < task["faces_stock"]
     for camera in ("agent", "wrist"):
         cam = task[camera]
-        assert cam["psnr"] > 20 and cam["ms_fast"] > 0 and cam["ms_stock"] > 0
+        assert cam["psnr"] > 20 and cam["ms_fast"] > 0 and cam["ms_stock"] > 0 and cam["ms_fast_no_msaa"] > 0
+        assert cam["psnr_fast_no_msaa"] < cam["psnr"]  # stock is anti-aliased: a frame without it is further off
         shares = [g["share"] for g in cam["error_by_geom"]]
         assert shares == sorted(shares, reverse=True) and 0 < sum(shares) <= 1.0 + 1e-6
 

@@ -1,6 +1,10 @@
 """`seal bench render`: the fast render mode per task and camera at one size - quality against
 stock, time per camera, and *where* the error is.
 
+``ms_fast_no_msaa`` / ``psnr_fast_no_msaa``: the same fast frame without MuJoCo's 4x multisampling
+(stock images have it), so the share of the time that anti-aliasing takes, and the quality it
+buys, stand beside each other.
+
 The error of a fast frame is attributed to the geoms that stock draws at each pixel (MuJoCo's
 segmentation render of the stock model): the share of the squared error each mesh carries says
 which mesh to fix next, and whether it is texture or geometry. One state per task: the episode
@@ -8,6 +12,8 @@ start of init 0 after 20 seeded random actions (the arm in view, objects where L
 """
 
 from __future__ import annotations
+
+import copy
 
 import mujoco
 import numpy as np
@@ -62,9 +68,18 @@ def _fixed_cost_ms(world: LiberoWorld, px: int) -> float:
         renderer.close()
 
 
+def _no_msaa_renderer(world: LiberoWorld, px: int) -> SceneRenderer:
+    """The fast render model without multisampling (MuJoCo's offscreen default is 4 samples per
+    pixel, which stock LIBERO images have): what the anti-aliasing costs, and what it is worth."""
+    model = copy.deepcopy(world.render_model)
+    model.vis.quality.offsamples = 0
+    return SceneRenderer(model, px)
+
+
 def _one_task(spec, px: int) -> dict:
     stock = LiberoWorld(spec, render_mode="stock")
     fast = LiberoWorld(spec, render_mode="fast")
+    closing: list[SceneRenderer] = []
     try:
         actions = np.random.default_rng(0).uniform(-1, 1, (20, 7))
         for w in (stock, fast):
@@ -72,9 +87,12 @@ def _one_task(spec, px: int) -> dict:
             w.step_chunk(actions)
         out = {"faces_stock": drawn_faces(stock.model), "faces_fast": drawn_faces(fast.render_model),
                "ms_fixed": _fixed_cost_ms(fast, px)}
+        no_msaa = _no_msaa_renderer(fast, px)
+        closing.append(no_msaa)
         for camera, name in ((AGENT_CAMERA, "agent"), (WRIST_CAMERA, "wrist")):
             a = stock.render_raw((camera,), size=px)[camera]
             b = fast.render_raw((camera,), size=px)[camera]
+            plain = lambda: no_msaa.render(fast.model, fast.data, camera, fast.render_state())  # noqa: E731
             err = ((a.astype(np.float64) - b.astype(np.float64)) ** 2).sum(-1)
             ids = _segmentation(stock, camera, px)
             total = float(err.sum()) or 1.0
@@ -83,11 +101,15 @@ def _one_task(spec, px: int) -> dict:
                 "psnr": psnr(a, b),
                 "ms_stock": median_ms(lambda: stock.render_raw((camera,), size=px), 8),
                 "ms_fast": median_ms(lambda: fast.render_raw((camera,), size=px), 8),
+                "psnr_fast_no_msaa": psnr(a, plain()),
+                "ms_fast_no_msaa": median_ms(plain, 8),
                 "error_by_geom": [{"geom": _geom_label(stock.model, g), "share": round(s, 3)}
                                   for s, g in shares[:TOP]],
             }
         return out
     finally:
+        for renderer in closing:
+            renderer.close()
         stock.close()
         fast.close()
 
