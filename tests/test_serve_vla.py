@@ -190,6 +190,7 @@ def test_value_method_with_the_vla_twin(ckpts, tmp_path, value_size):
     with build_episode(spec, BOOK, seed=0, max_steps=15, policy=policy, scorer=scorer, workers=1) as episode:
         result = episode.run(0)
     assert result.steps == 15 and not result.sim_error
+    assert result.aligned == [None]  # the twin's one "sub-plan" is the task: not an alignment audit
     assert set(seen["policy"]) == {(SIZE, SIZE, 3)}  # rendered at the model's size
     assert len(seen["scorer"]) == 3 and {s for s, _, _ in seen["scorer"]} == {(value_size, value_size, 3)}
     executed = np.asarray(result.executed_actions)

@@ -379,7 +379,10 @@ class Steerer:
     def _aligned(self, reasoning) -> bool | None:
         """The seed's reasoning-action alignment, made measurable: do the goal atoms the oracle grounds
         the sub-plan to hold in the committed state (slot 0)? An audit for every method, verified or
-        not; its answer never reaches the selection."""
+        not; its answer never reaches the selection. A "sub-plan" that is the whole instruction (a
+        policy that writes none, like the non-reasoning twin) is not audited: that is task success."""
+        if reasoning.now.strip().lower() == self.pool.task.instruction.strip().lower():
+            return None
         plans = tuple(reasoning.plans)
         index = plans.index(reasoning.now) if reasoning.now in plans else None
         atoms = [str(a) for a in ground(reasoning.now, plans, self._objects, index).atoms]
