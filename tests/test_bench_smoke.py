@@ -60,6 +60,8 @@ def test_bench_steer(capsys):
     assert _fraction(out["base_mean_success"]) and _fraction(out["seal_mean_success"])
     assert out["lift"] == pytest.approx(out["seal_mean_success"] - out["base_mean_success"], abs=1e-3)
     assert out["per_task"].keys() == {"5"}
+    for m in ("base", "seal"):  # every commit of 60 steps is audited (task 5's sub-plans all ground)
+        assert out[f"subplans_audited_{m}"] >= 1 and _fraction(out[f"alignment_{m}"])
 
 
 def test_bench_runtime_names_its_stand_in_verifier(capsys):

@@ -51,6 +51,7 @@ def run_steer(args) -> dict:
                for m in ("base", "seal")}
     # One verifier for every episode (a learned one loads its checkpoint once); episodes borrow it.
     verifier = verifier_for(methods["seal"])
+    audits: dict[str, list[bool]] = {"base": [], "seal": []}  # committed sub-plans achieved, by simulator truth
     for t in _tasks(args, "0,1,7"):
         spec = get_task(args.suite, t)
         wins = {"base": 0, "seal": 0}
@@ -59,7 +60,9 @@ def run_steer(args) -> dict:
                 for name, method in methods.items():
                     with build_episode(method, spec, seed=trial, pool=pool, max_steps=_max_steps(args),
                                        verifier=verifier if name == "seal" else None) as episode:
-                        wins[name] += episode.run(trial % pool.task.init_states().shape[0]).success
+                        result = episode.run(trial % pool.task.init_states().shape[0])
+                        wins[name] += result.success
+                        audits[name] += [a for a in result.aligned if a is not None]
         per_task[str(t)] = {m: round(w / trials, 3) for m, w in wins.items()}
     base = float(np.mean([v["base"] for v in per_task.values()]))
     seal = float(np.mean([v["seal"] for v in per_task.values()]))
@@ -68,6 +71,8 @@ def run_steer(args) -> dict:
             "policy": methods["seal"].policy,
             "max_steps": _max_steps(args),
             "base_mean_success": round(base, 3), "seal_mean_success": round(seal, 3), "lift": round(seal - base, 3),
+            **{f"alignment_{m}": (round(sum(a) / len(a), 3) if a else None) for m, a in audits.items()},
+            **{f"subplans_audited_{m}": len(a) for m, a in audits.items()},
             "per_task": per_task}
 
 
