@@ -106,3 +106,32 @@ def test_noise_sweep_writes_rows_as_it_goes_resumes_and_plots(tmp_path, capsys):
         from seal.benchmarks.sweep import _rates
 
         _rates("0,2", (), "--fp")
+
+
+def test_a_task_that_yields_nothing_is_given_up_and_the_others_go_on(tmp_path, capsys, monkeypatch):
+    """With --balance, a task that can never yield the missing class stops after --patience barren
+    episodes instead of running --max-episodes; a task whose starts cannot be drawn is skipped."""
+    out = tmp_path / "cases"
+    # 10 steps: no candidate can pick the book, so failures fill their half and successes never come
+    assert main([*COLLECT, "--per-task", "2", "--balance", "--max-steps", "10", "--patience", "2",
+                 "--out", str(out)]) == 0
+    captured = capsys.readouterr()
+    summary = json.loads(captured.out.strip().splitlines()[-1])
+    assert summary["episodes_run"] == 3 and summary["counts"]["libero_10/5"]["failure"] == 1
+    assert "2 episodes in a row kept no case (still missing successes" in summary["tasks_given_up"]["libero_10/5"]
+    assert "libero_10/5 given up" in captured.err
+
+    import seal.collect as collect_module
+
+    real = collect_module.fresh_init_states
+
+    def refuse(task, *a, **k):
+        if task.task_id == 5:
+            raise InvalidInput(f"{task.key}: only 0 usable fresh init states in 420 draws")
+        return real(task, *a, **k)
+
+    monkeypatch.setattr(collect_module, "fresh_init_states", refuse)
+    assert main(["verify", "collect", "--suite", "libero_10", "--tasks", "5,1", "--k", "2", "--inits-per-task", "1",
+                 "--max-steps", "10", "--workers", "1", "--per-task", "1", "--out", str(tmp_path / "two")]) == 0
+    summary = _json(capsys)
+    assert "only 0 usable" in summary["tasks_given_up"]["libero_10/5"] and summary["counts"]["libero_10/1"]

@@ -131,8 +131,8 @@ def _cmd_verify(args) -> int:
                           policy=args.policy, knobs=args.knobs, k=args.k or 10, rounds=args.rounds or 2,
                           balance=args.balance, early_exit=args.early_exit, init_source=args.init_source,
                           inits_per_task=args.inits_per_task,
-                          max_episodes=args.max_episodes, max_steps=args.max_steps, workers=args.workers,
-                          method_settings=settings)
+                          max_episodes=args.max_episodes, patience=args.patience, max_steps=args.max_steps,
+                          workers=args.workers, method_settings=settings)
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   console=Console(stderr=True)) as bar:
         job = bar.add_task("verification cases", total=len(opts.tasks) * opts.per_task)
@@ -141,6 +141,8 @@ def _cmd_verify(args) -> int:
             bar.update(job, completed=total, description=text)
 
         summary = collect(opts, Path(args.out), progress=progress)
+    for key, why in summary["tasks_given_up"].items():
+        print(f"seal: warning: {key} given up: {why}", file=sys.stderr)
     print(json.dumps(summary))
     return 0
 
@@ -531,6 +533,8 @@ def _add_verify(sub) -> None:
                           "or LIBERO's official evaluation ones")
     col.add_argument("--inits-per-task", type=int, default=20, help="fresh init states drawn per task")
     col.add_argument("--max-episodes", type=int, default=None, help="per task (default 4 x --per-task)")
+    col.add_argument("--patience", type=int, default=20,
+                     help="give a task up after this many episodes in a row that kept no case (default 20)")
     col.add_argument("--max-steps", type=int, default=None, help="per episode (default: the suite's limit)")
     col.add_argument("--workers", type=int, default=None, help="simulator processes (default: min(K, cores))")
     col.add_argument("--out", required=True, help="collection directory (re-run with the same one to continue)")

@@ -72,6 +72,9 @@ class CollectOptions:
     init_source: str = "fresh-train"
     inits_per_task: int = 20  # fresh sources: init states drawn per task (episodes cycle through them)
     max_episodes: int | None = None  # per task; default 4 * per_task
+    # a task gives up after this many episodes in a row that kept no case: with --balance, a task whose
+    # only sub-plan's success ends the task never yields a judged success, and would run max_episodes
+    patience: int = 20
     max_steps: int | None = None  # per episode; default the suite's limit
     workers: int | None = None  # pool worker processes
     method_settings: dict = field(default_factory=dict)  # other MethodSpec fields (host, port, ...)
@@ -243,6 +246,7 @@ def collect(opts: CollectOptions, out: Path, *, progress: Callable | None = None
                        for k, v in sorted(counts.items())}}})
 
     total = sum(v["success"] + v["failure"] for v in have_all.values())
+    skipped: dict[str, str] = {}  # task -> why it was given up (the other tasks go on)
     for task_id in opts.tasks:
         task = get_task(opts.suite, task_id)
         have = have_all.setdefault(task.key, {"episodes": set(), "success": 0, "failure": 0})
@@ -255,7 +259,11 @@ def collect(opts: CollectOptions, out: Path, *, progress: Callable | None = None
             def drew(i, n, key=task.key):
                 if progress is not None:
                     progress(f"{key}: drawing fresh init states {i}/{n}", 0, total)
-            run_task, seeds = fresh_init_states(task, opts.init_source, opts.inits_per_task, out, drew)
+            try:
+                run_task, seeds = fresh_init_states(task, opts.init_source, opts.inits_per_task, out, drew)
+            except InvalidInput as exc:  # this scene's sampler gives no usable start: say so, go on
+                skipped[task.key] = str(exc)
+                continue
             n_inits = len(seeds)
         tasks_info[task.key] = {"init_source": opts.init_source, "init_states": n_inits,
                                 "init_file": str(Path(run_task.init_states_path).relative_to(out))
@@ -263,7 +271,13 @@ def collect(opts: CollectOptions, out: Path, *, progress: Callable | None = None
         episode = max(have["episodes"], default=-1) + 1
         with EnvPool(run_task, k=spec.effective_k, workers=opts.workers, render_mode=spec.render,
                      physics=spec.physics()) as pool:
+            barren = 0  # episodes in a row that kept nothing
             while not _done(have, opts) and len(have["episodes"]) < max_episodes:
+                if barren >= opts.patience:
+                    missing = "successes" if have["success"] < opts.per_task // 2 else "failures"
+                    skipped[task.key] = (f"{barren} episodes in a row kept no case (still missing {missing}; "
+                                         "a sub-plan whose success ends the task is never judged)")
+                    break
                 init_index = episode % n_inits
                 seed = _episode_seed(task.key, opts.init_source, episode)
                 base = {"suite": task.suite, "task_id": task.task_id, "task": task.key,
@@ -277,6 +291,7 @@ def collect(opts: CollectOptions, out: Path, *, progress: Callable | None = None
                         ep.steerer.selection = WholeRounds()
                     ep.run(init_index)
                 kept = _keep(recorder.rows, have, opts)
+                barren = 0 if kept else barren + 1
                 ds.write_shard(out, ds.shard_name(task.suite, task.task_id, episode), kept)
                 have["episodes"].add(episode)
                 unknown += recorder.unknown
@@ -291,4 +306,4 @@ def collect(opts: CollectOptions, out: Path, *, progress: Callable | None = None
     counts = ds.read_info(out)["collection"]["counts"]
     return {"out": str(out.resolve()), "episodes_run": episodes_run, "ungroundable_skipped": unknown,
             "cases": sum(v["success"] + v["failure"] for v in counts.values()), "counts": counts,
-            "init_source": opts.init_source}
+            "init_source": opts.init_source, "tasks_given_up": skipped}
