@@ -313,11 +313,9 @@ class AlignmentRow:
 
 
 def alignment_rows(data: ReportData) -> list[AlignmentRow]:
-    out = []
-    for m in data.methods:
-        rs = [r for r in data.rows if r.config_hash == m.config_hash]
-        out.append(AlignmentRow(m, len(rs), sum(r.subplans_audited for r in rs), sum(r.subplans_aligned for r in rs)))
-    return out
+    by_method = [(m, [r for r in data.rows if r.config_hash == m.config_hash]) for m in data.methods]
+    return [AlignmentRow(m, len(rs), sum(r.subplans_audited for r in rs), sum(r.subplans_aligned for r in rs))
+            for m, rs in by_method]
 
 
 def alignment_display(rows: list[AlignmentRow]) -> Table:
