@@ -3,7 +3,7 @@ import pytest
 
 from seal.datasets import open_dataset
 from seal.demos import record_demos
-from seal.episode import run_policy_episode
+from seal.episode import Recording, run_policy_episode
 from seal.errors import InvalidInput
 from seal.policies.expert.plan import decompose, plan_task
 from seal.policies.expert.policy import FailureKnobs, ScriptedExpert
@@ -74,6 +74,18 @@ def test_expert_solves_the_book_task_and_reasons_in_three_fields(book_world):
     assert first.startswith("Plans: 1. pick up the book.") and "What has been done: nothing yet." in first
     assert "Now I need to do: pick up the book." in first
     assert "Now I need to do: place it in the back compartment of the caddy." in result.reasoning[1][1]
+
+
+def test_a_pixel_policy_gets_its_cameras_without_a_recording(book_world):
+    # A policy that declares an image size (a learned VLA) is shown both cameras at that size in a
+    # plain episode too, not only when frames are recorded.
+    from seal.benchmarks.steer import PixelReadingExpert
+
+    policy = PixelReadingExpert(ScriptedExpert.for_world(book_world), 32)
+    result = run_policy_episode(book_world, policy, init_index=0, max_steps=10)
+    assert result.steps == 10 and policy.pixels_read == 2 * 32 * 32 * 3 * 2  # two chunks, two cameras
+    with pytest.raises(InvalidInput, match="record at image_size=32"):
+        run_policy_episode(book_world, policy, init_index=0, max_steps=5, recording=Recording(), image_size=64)
 
 
 def _first_chunks(world, knobs, seed, n=3):

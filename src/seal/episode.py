@@ -15,8 +15,8 @@ from pathlib import Path
 import imageio.v2 as imageio
 import numpy as np
 
-from seal.errors import SimulationError
-from seal.policies.base import ACTION_HORIZON
+from seal.errors import InvalidInput, SimulationError
+from seal.policies.base import ACTION_HORIZON, images_for
 from seal.sim.world import LiberoWorld
 
 
@@ -68,7 +68,14 @@ def run_policy_episode(world: LiberoWorld, policy, *, init_index: int, max_steps
     result = EpisodeResult(task=world.task.key, instruction=world.instruction, init_index=init_index,
                            success=False, sim_error=False, steps=0, wall_s=0.0, video=str(video_path or ""),
                            start_seed=start_seed)
+    # Recording/video wants frames (at ``image_size`` for datasets); a policy that looks at
+    # images gets what it was trained on either way.
     need_images = (image_size or True) if (recording is not None or writer is not None) else False
+    wanted = images_for(policy, atoms)
+    if isinstance(wanted, int) and not isinstance(wanted, bool) and need_images not in (False, wanted):
+        raise InvalidInput(f"the policy sees {wanted}-px images but the recording asks for "
+                           f"{'224' if need_images is True else need_images}-px frames; record at image_size={wanted}")
+    need_images = wanted or need_images
     try:
         obs = world.observe(images=need_images, privileged_atoms=atoms)
         reasoning = policy.reason(obs)

@@ -92,3 +92,10 @@ class ReasoningPolicy(Protocol):
         """One chunk per observation; ``rows`` says which of the ``begin(k)`` attempts each
         observation belongs to (default: 0..n-1), so finished candidates can drop out."""
         ...
+
+
+def images_for(policy: ReasoningPolicy, atoms: list[str] | None) -> bool | int:
+    """What a policy needs rendered with each observation: nothing (a scripted policy that reads
+    the privileged state, ``atoms`` not None), openpi's 224-px view (True), or both cameras at the
+    side it declares in ``image_size`` (an int). A declared size wins even over state reading."""
+    return getattr(policy, "image_size", None) or (False if atoms is not None else True)

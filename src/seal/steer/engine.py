@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from seal.errors import InvalidInput
-from seal.policies.base import ACTION_HORIZON
+from seal.policies.base import ACTION_HORIZON, images_for
 from seal.sim.observation import Observation
 from seal.sim.snapshot import Snapshot
 from seal.steer.background import BackgroundVerifier
@@ -144,8 +144,7 @@ class Steerer:
         # What the policy looks at: nothing (the scripted expert reads state), openpi's 224-px
         # view (True), or both cameras rendered at the size the policy was trained at.
         # A policy that declares an image size gets its renders even if it also reads state.
-        self.policy_images: bool | int = (getattr(policy, "image_size", None)
-                                          or (False if self.atoms is not None else True))
+        self.policy_images: bool | int = images_for(policy, self.atoms)
         # A policy without <think> (plain pi0 + a planner): the verifier decides when a sub-plan is done.
         self._check_midway = self.selection.verifies and not policy.thinks
 
