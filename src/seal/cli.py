@@ -54,7 +54,7 @@ def _cmd_ground(args) -> int:
 
 
 def _cmd_demos(args) -> int:
-    from rich.progress import Progress
+    from seal.progress import Progress
 
     from seal.demos import record_demos
     from seal.policies.expert.policy import FailureKnobs
@@ -83,7 +83,7 @@ def _stage_bars(names: dict[str, str], info):
     stages not named are "training"), ``info(extra)`` the text beside it. Yields the callback
     ``progress(stage, done, total, extra=None)`` the trainers take."""
     from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+    from seal.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TextColumn("{task.fields[info]}"), TimeRemainingColumn(), console=Console(stderr=True)) as bar:
@@ -121,7 +121,7 @@ def _cmd_train(args) -> int:
 
 def _cmd_verify(args) -> int:
     from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+    from seal.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from seal.collect import CollectOptions, collect
     from seal.sim.suites import parse_task_ids
@@ -213,7 +213,7 @@ def _cmd_suites(args) -> int:
 
 
 def _cmd_eval(args) -> int:
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+    from seal.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     from seal.eval.execute import RunOptions
     from seal.eval.runner import run_eval
@@ -252,7 +252,7 @@ def _cmd_eval(args) -> int:
 
 
 def _cmd_report(args) -> int:
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
+    from seal.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
     from seal.report import write_report
 
@@ -306,7 +306,7 @@ def _cmd_serve(args) -> int:
 
 def _cmd_annotate(args) -> int:
     from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+    from seal.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from seal.annotate.backends import make_annotator
     from seal.annotate.pipeline import (RunOptions, annotate_dataset, parse_episode_list, read_annotations,

@@ -171,7 +171,7 @@ def main(args) -> int:
         print(json.dumps({"suite": suite, "tasks": tasks, "out": str(out)}))
         return 0
     if cmd == "generate":
-        from rich.progress import Progress
+        from seal.progress import Progress
 
         from seal.sim.generate import generate_suite
 

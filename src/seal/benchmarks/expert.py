@@ -128,7 +128,7 @@ def run(args) -> dict:
     rows = [done[j] for j in jobs if j in done]
     workers = max(1, min(args.workers or os.cpu_count() or 1, len(todo) or 1))
 
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+    from seal.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     start = time.perf_counter()
     # Progress goes to stderr so stdout stays one JSON object.
