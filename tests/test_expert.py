@@ -132,6 +132,25 @@ def test_demos_record_writes_lerobot_and_resumes(tmp_path):
     assert ds.episode_meta(0)["meta"]["init_index"] == 0 and ds.episode_meta(0)["meta"]["success"] is True
 
 
+def test_dart_perturbs_what_is_executed_not_what_is_recorded(book_world, tmp_path):
+    runs = {}
+    for dart in (0.0, 0.3):
+        rec = Recording()
+        run_policy_episode(book_world, ScriptedExpert.for_world(book_world), init_index=0, max_steps=15,
+                           recording=rec, image_size=32, dart=dart)
+        runs[dart] = (np.stack(rec.states), np.stack(rec.actions))
+    (s0, a0), (s1, a1) = runs[0.0], runs[0.3]
+    assert np.array_equal(a0[:5], a1[:5])  # the first chunk's labels are the expert's, unperturbed
+    assert np.array_equal(s0[0], s1[0]) and not np.allclose(s0[5], s1[5], atol=1e-3)  # ...but not what ran
+    with pytest.raises(InvalidInput, match="dart must be a noise std"):
+        run_policy_episode(book_world, ScriptedExpert.for_world(book_world), init_index=0, dart=-0.1)
+    (tmp_path / "meta").mkdir()
+    (tmp_path / "meta" / "seal_attempts.jsonl").write_text(
+        '{"suite": "libero_10", "task_id": 5, "init_index": 0, "success": true}\n')
+    with pytest.raises(InvalidInput, match="recorded with --dart 0.0, not 0.1"):
+        record_demos("libero_10", tmp_path, episodes_per_task=1, tasks=[5], dart=0.1)
+
+
 def test_demos_record_refuses_bad_counts_before_any_work(tmp_path):
     with pytest.raises(InvalidInput, match="must be in 1..50, got 51"):
         record_demos("libero_10", tmp_path / "d", episodes_per_task=51, tasks=[5], starts="official")

@@ -72,7 +72,7 @@ def _cmd_demos(args) -> int:
         summary = record_demos(args.suite, Path(args.out), episodes_per_task=args.episodes_per_task, tasks=tasks,
                                knobs=FailureKnobs.named(args.knobs), progress=progress,
                                keep_failures=args.keep_failures, starts=args.starts, image_size=args.image_size,
-                               render_mode=args.render, workers=args.workers)
+                               render_mode=args.render, workers=args.workers, dart=args.dart)
     print(json.dumps(summary.__dict__))
     return 0
 
@@ -460,6 +460,9 @@ def _add_demos(sub) -> None:
     rec.add_argument("--render", default="stock", choices=["stock", "fast"],
                      help="render model; record in the one the policy will be evaluated in")
     rec.add_argument("--workers", type=int, default=1, help="episodes recorded in parallel (one simulator each)")
+    rec.add_argument("--dart", type=float, default=0.0,
+                     help="perturb each executed chunk by a Gaussian offset of this std (action units, e.g. 0.1) "
+                          "and record the expert's unperturbed actions: demonstrations of recovering (DART)")
     rec.set_defaults(func=_cmd_demos)
 
 

@@ -58,6 +58,7 @@ class _Job:
     knobs: FailureKnobs
     render_mode: str
     image_size: int | None
+    dart: float = 0.0
 
 
 def start_seed(task_key: str, episode: int) -> int:
@@ -66,7 +67,7 @@ def start_seed(task_key: str, episode: int) -> int:
     return (zlib.crc32(f"train:{task_key}".encode()) % 1_000_000) * 1_000_000 + episode * SEED_STRIDE
 
 
-def _attempted(root: Path) -> set[tuple[str, int, int]]:
+def _attempted(root: Path, dart: float = 0.0) -> set[tuple[str, int, int]]:
     path = root / ATTEMPTS
     if not path.is_file():
         return set()
@@ -76,6 +77,9 @@ def _attempted(root: Path) -> set[tuple[str, int, int]]:
             rec = json.loads(line)
         except json.JSONDecodeError:
             continue  # a torn last line after a crash: that attempt simply runs again
+        if float(rec.get("dart", 0.0)) != dart:
+            raise InvalidInput(f"{root} was recorded with --dart {rec.get('dart', 0.0)}, not {dart}; "
+                               "resume it with the same setting or record into a new directory")
         done.add((rec["suite"], rec["task_id"], rec["init_index"]))
     return done
 
@@ -93,9 +97,10 @@ def _run_job(job: _Job) -> tuple[_Job, dict, Episode | None]:
     policy = ScriptedExpert.for_world(world, job.knobs)
     rec = Recording()
     result = run_policy_episode(world, policy, init_index=job.episode, recording=rec,
-                                start_seed=job.start_seed, image_size=job.image_size)
+                                start_seed=job.start_seed, image_size=job.image_size, dart=job.dart)
     attempt = {"suite": job.suite, "task_id": job.task_id, "init_index": job.episode, "success": result.success,
-               "steps": result.steps, "sim_error": result.sim_error, "start_seed": result.start_seed}
+               "steps": result.steps, "sim_error": result.sim_error, "start_seed": result.start_seed,
+               "dart": job.dart}
     if not rec.actions:
         return job, attempt, None
     episode = Episode(
@@ -110,6 +115,8 @@ def _run_job(job: _Job) -> tuple[_Job, dict, Episode | None]:
               "start": "official" if job.start_seed is None else "sampled", "start_seed": result.start_seed,
               "render_mode": job.render_mode, "image_size": job.image_size or 224,
               "steps": result.steps, "success": bool(result.success), "knobs": job.knobs.__dict__,
+              # executed chunks were perturbed by this std; recorded actions are the expert's own
+              "dart": job.dart,
               # what the expert wrote at each <think>: (step, text) pairs
               "reasoning": [[int(s), t] for s, t in result.reasoning]},
     )
@@ -125,9 +132,10 @@ def _close_world() -> None:
 def record_demos(suite: str, out: Path, *, episodes_per_task: int, tasks: list[int] | None = None,
                  knobs: FailureKnobs | None = None, progress=None, render_mode: str = "stock",
                  keep_failures: bool = False, starts: str = "sampled", image_size: int | None = None,
-                 workers: int = 1) -> RecordSummary:
+                 workers: int = 1, dart: float = 0.0) -> RecordSummary:
     """Record expert episodes; ``keep_failures`` also writes failed ones (meta ``success`` False),
-    which offline RL (the V-GPS value function) needs as contrast to the successes."""
+    which offline RL (the V-GPS value function) needs as contrast to the successes. ``dart``:
+    perturb the executed chunks, record the expert's actions (`run_policy_episode`)."""
     if starts not in STARTS:
         raise InvalidInput(f"unknown starts {starts!r}; valid: {', '.join(STARTS)}")
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
@@ -139,11 +147,13 @@ def record_demos(suite: str, out: Path, *, episodes_per_task: int, tasks: list[i
         if not 1 <= episodes_per_task <= n:
             raise InvalidInput(f"{spec.key} has {n} init states; --episodes-per-task must be in 1..{n}, "
                                f"got {episodes_per_task}")
+    if not isinstance(dart, (int, float)) or isinstance(dart, bool) or not 0.0 <= dart <= 1.0:
+        raise InvalidInput(f"--dart must be a noise std in [0, 1] (action units), got {dart!r}")
     knobs = knobs or FailureKnobs()
     out.mkdir(parents=True, exist_ok=True)
     summary = RecordSummary()
+    attempted = _attempted(out, float(dart))  # refuses a resume with other settings before any work
     with LeRobotWriter(out, fps=20, image_size=image_size or 224) as writer:
-        attempted = _attempted(out)
         jobs = []
         for spec in specs:
             todo = [e for e in range(episodes_per_task) if (suite, spec.task_id, e) not in attempted]
@@ -151,7 +161,7 @@ def record_demos(suite: str, out: Path, *, episodes_per_task: int, tasks: list[i
             if progress:
                 progress(spec, summary, advance=episodes_per_task - len(todo))
             jobs += [_Job(suite, spec.task_id, e, None if starts == "official" else start_seed(spec.key, e),
-                          knobs, render_mode, image_size) for e in todo]
+                          knobs, render_mode, image_size, float(dart)) for e in todo]
         # Blocks of BLOCK episodes per task, task after task, then the next block: a recording
         # stopped early (or read while it runs) holds every task about equally, and a worker
         # rebuilds its world only once per block.

@@ -50,12 +50,20 @@ class Recording:
 def run_policy_episode(world: LiberoWorld, policy, *, init_index: int, max_steps: int | None = None,
                        recording: Recording | None = None, video_path: Path | None = None,
                        progress=None, start_seed: int | None = None,
-                       image_size: int | None = None) -> EpisodeResult:
+                       image_size: int | None = None, dart: float = 0.0) -> EpisodeResult:
     """Run ``policy`` (a ReasoningPolicy) alone for one episode; optionally record every frame.
 
     The episode starts from official init state ``init_index``, or, with ``start_seed``, from a
     freshly sampled start (`LiberoWorld.reset_sampled`; training data). Recorded frames are
-    openpi's 224-px view, or both cameras rendered at ``image_size`` px."""
+    openpi's 224-px view, or both cameras rendered at ``image_size`` px.
+
+    ``dart`` > 0 perturbs what is executed, not what is recorded (DART, Laskey et al. 2017): each
+    executed chunk's translation and rotation get one Gaussian offset of that std, held for the
+    chunk so it adds up to a displacement the next chunk has to correct, while the recording
+    keeps the policy's own action at every perturbed state. Imitation then sees how the expert
+    recovers from the small errors a learned policy will make."""
+    if not 0.0 <= dart <= 1.0:
+        raise InvalidInput(f"dart must be a noise std in [0, 1] (action units), got {dart}")
     max_steps = max_steps or world.task.max_steps
     start = time.perf_counter()
     if start_seed is None:
@@ -63,6 +71,7 @@ def run_policy_episode(world: LiberoWorld, policy, *, init_index: int, max_steps
     else:
         start_seed = world.reset_sampled(start_seed)
     policy.reset(world.instruction, seed=init_index if start_seed is None else start_seed)
+    noise = np.random.default_rng([init_index if start_seed is None else start_seed, 0xDA27])
     atoms = policy.privileged_atoms() if hasattr(policy, "privileged_atoms") else None
     writer = imageio.get_writer(video_path, fps=10, macro_block_size=1) if video_path else None
     result = EpisodeResult(task=world.task.key, instruction=world.instruction, init_index=init_index,
@@ -90,6 +99,9 @@ def run_policy_episode(world: LiberoWorld, policy, *, init_index: int, max_steps
                 result.reasoning.append((world.steps, reasoning.text()))
                 policy.begin(1)
                 continue
+            offset = np.zeros(7, dtype=np.float32)
+            if dart:
+                offset[:6] = noise.normal(0.0, dart, 6)  # the gripper is never perturbed
             for action in chunk.actions[:ACTION_HORIZON]:
                 if recording is not None:
                     recording.agent.append(obs.agent)
@@ -98,7 +110,7 @@ def run_policy_episode(world: LiberoWorld, policy, *, init_index: int, max_steps
                     recording.actions.append(np.asarray(action, dtype=np.float32))
                 if writer is not None and world.steps % 2 == 0:
                     writer.append_data(obs.agent)
-                world.step(action)
+                world.step(np.clip(action + offset, -1.0, 1.0) if dart else action)
                 obs = world.observe(images=need_images, privileged_atoms=atoms)
                 _mark_critical(result, obs, policy, world.steps)
                 if progress is not None:
