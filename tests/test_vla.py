@@ -15,6 +15,7 @@ from _annotate_data import make_v21
 from seal.annotate.backends import make_annotator
 from seal.annotate.pipeline import annotate_dataset
 from seal.cli import main
+from seal.demos import start_seed
 from seal.errors import InvalidInput
 from seal.policies import make_policy
 from seal.policies.base import Reasoning
@@ -281,6 +282,13 @@ def test_train_vla_command_and_bench(annotated, tmp_path, capsys):
                 "action_mse"):
         assert key in bench, key
     assert bench["weights"] == "checkpoint" and bench["reason_ms"] is None and bench["action_mse"] >= 0
+    # closed loop in the simulator, on a start no recording and no evaluation uses
+    assert main(["bench", "vla", "--ckpt", str(tmp_path / "ship"), "--trials", "1", "--rollouts", "1",
+                 "--tasks", "5", "--max-steps", "10"]) == 0
+    bench = json.loads(capsys.readouterr().out)
+    (row,) = bench["rollouts"]
+    assert row["task"] == "libero_10/5" and row["steps"] == 10 and row["start_seed"] >= start_seed("libero_10/5", 1000)
+    assert bench["rollout_success"] == 0.0 and set(row["goal_status"]) == {"In(black_book_1, desk_caddy_1_back_contain_region)"}
 
 
 # ---------------------------------------------------------------------------------------- the policy

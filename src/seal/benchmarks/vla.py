@@ -20,6 +20,12 @@
 - ``subplan_accuracy`` / ``action_mse``: `seal.train.vla.evaluate` on held-out episodes (the
   checkpoint manifest's, else the trainer's split) when --annotations is given; else null.
 
+- ``--rollouts N`` (with --ckpt): N closed-loop episodes of the policy alone per task (``--tasks``,
+  default all of LIBERO-10) from fresh sampled starts that neither a recording (episodes below
+  `ROLLOUT_EPISODE0`) nor an evaluation (official init states) uses, in ``--render`` mode (default
+  fast): ``rollout_success``, ``rollout_subgoals`` (share of the task's goal atoms that hold at the
+  end: partial progress) and one row per episode in ``rollouts``. A check of a run in progress
+  that never touches the evaluation starts.
 - ``--size NAME``: without --ckpt, time the preset ``SIZES[NAME]`` instead of the default config;
 - ``--sizes S,M,L``: ``train_grid``, one row per preset x (bf16, fp32) x (1, 2 threads) with the
   median seconds per training step at batch 32 (how the default config was chosen).
@@ -30,12 +36,15 @@ sampling figures are taken in turns within each repetition, so load changes hit 
 
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
 from seal.benchmarks import median_ms
+
+ROLLOUT_EPISODE0 = 1000  # rollout starts: start_seed(task, 1000 + e); recordings use episodes below 1000
 
 
 # Candidate sizes (fields of VLAConfig that differ from its defaults); "M" is the default.
@@ -212,4 +221,44 @@ def run(args) -> dict:
                           "split": "checkpoint manifest" if held else "trainer's seeded split"}
     else:
         out["heldout"] = "no --annotations given: subplan_accuracy and action_mse are null"
+    if getattr(args, "rollouts", 0):
+        if not args.ckpt:
+            raise InvalidInput("--rollouts needs --ckpt: a random-init model has nothing to show")
+        out |= rollouts(str(path), tasks=args.tasks, n=int(args.rollouts), render=args.render or "fast",
+                        max_steps=getattr(args, "max_steps", None))
     return out
+
+
+def rollouts(ckpt: str, *, tasks: str, n: int, render: str, suite: str = "libero_10", max_steps: int | None = None,
+             progress=None) -> dict:
+    """The policy alone, closed loop, on fresh sampled starts (see the module docstring)."""
+    from seal.demos import start_seed
+    from seal.episode import run_policy_episode
+    from seal.policies.vla.policy import VLAPolicy
+    from seal.sim.suites import parse_task_ids, task_count
+    from seal.sim.world import LiberoWorld
+
+    if n < 1:
+        raise InvalidInput(f"--rollouts must be >= 1, got {n}")
+    progress = progress or (lambda line: print(line, file=sys.stderr, flush=True))  # stdout is the JSON
+    ids = parse_task_ids(suite, tasks) if tasks else list(range(task_count(suite)))
+    policy = VLAPolicy.load(ckpt)
+    rows = []
+    for task_id in ids:
+        world = LiberoWorld((suite, task_id), render_mode=render)
+        try:
+            for e in range(n):
+                r = run_policy_episode(world, policy, init_index=ROLLOUT_EPISODE0 + e, max_steps=max_steps,
+                                       start_seed=start_seed(world.task.key, ROLLOUT_EPISODE0 + e))
+                held = list(r.goal_status.values())
+                rows.append({"task": world.task.key, "start_seed": r.start_seed, "success": bool(r.success),
+                             "subgoals": round(sum(held) / len(held), 3) if held else 0.0, "steps": r.steps,
+                             "goal_status": r.goal_status})
+                if progress:
+                    progress(f"rollout {world.task.key} #{e}: success={r.success} "
+                             f"subgoals={rows[-1]['subgoals']} steps={r.steps} ({r.wall_s:.0f} s)")
+        finally:
+            world.close()
+    return {"rollout_success": round(float(np.mean([r["success"] for r in rows])), 3),
+            "rollout_subgoals": round(float(np.mean([r["subgoals"] for r in rows])), 3),
+            "rollout_render": render, "rollouts": rows}
