@@ -31,7 +31,7 @@ def test_summary_reports_fractions_and_failing_inits():
 def test_log_refuses_other_code_and_tolerates_a_torn_last_line(tmp_path):
     log = tmp_path / "log.jsonl"
     log.write_text(json.dumps(_row(0, "clean", 0, True)) + "\n" + '{"suite": "libero_10", "ta')
-    assert list(bench.read_log(log, "v1")) == [("libero_10", 0, "clean", 0)]
+    assert list(bench.read_log(log, "v1")) == [("libero_10", 0, "clean", 0, 0.0)]  # rows before --dart: 0
     with pytest.raises(InvalidInput, match="code version 'v1'.*another --log"):
         bench.read_log(log, "v2")
     log.write_text("not json\n" + json.dumps(_row(0, "clean", 0, True)) + "\n")
@@ -51,6 +51,10 @@ def test_resume_runs_only_missing_episodes(tmp_path, capsys):
     assert [r["init"] for r in rows] == [5, 4]  # init 5 was not re-run; init 4 appended
     assert out["episodes"] == 2 and out["first_init"] == 4
     assert out["failed_inits"].get("1", []) == sorted([5] + ([4] if not rows[1]["success"] else []))
+    assert out["dart"] == 0.0 and rows[1]["dart"] == 0.0
+    assert main(["bench", "expert", "--tasks", "1", "--trials", "1", "--first-init", "5", "--no-misaligned",
+                 "--dart", "2"]) != 0
+    assert "--dart must be a noise std in [0, 1]" in capsys.readouterr().err
 
 
 def test_bad_ranges_are_named(capsys):

@@ -673,6 +673,9 @@ def _add_bench(sub) -> None:
     bench.add_argument("--render", default=None, choices=["stock", "fast"],
                        help="runtime: render model (default: fast for pixel policies)")
     bench.add_argument("--plot", default=None, help="runtime: write the stacked breakdown against K to this PNG")
+    bench.add_argument("--dart", type=float, default=0.0,
+                       help="expert: perturb every executed chunk by a Gaussian offset of this std (as `seal demos "
+                            "record --dart` does): how much perturbation the expert survives")
     bench.add_argument("--rollouts", type=int, default=0,
                        help="vla with --ckpt: closed-loop episodes per task on fresh sampled starts (default 0: none)")
     bench.add_argument("--tasks", default="", help="comma-separated task ids (expert: all; steer: 0,1,7; runtime: 5; render: 0,3,9)")

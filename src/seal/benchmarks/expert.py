@@ -30,7 +30,7 @@ _cache: dict = {}  # per worker process: the last task's world (built once per t
 
 
 def _episode(job: tuple) -> dict:
-    suite, task_id, knobs, init = job
+    suite, task_id, knobs, init, dart = job
     from seal.episode import run_policy_episode
     from seal.policies.expert.policy import FailureKnobs, ScriptedExpert
     from seal.sim.world import LiberoWorld
@@ -41,8 +41,8 @@ def _episode(job: tuple) -> dict:
         _cache["world"], _cache["key"] = LiberoWorld((suite, task_id)), (suite, task_id)
     world = _cache["world"]
     policy = ScriptedExpert.for_world(world, FailureKnobs.named(knobs))
-    r = run_policy_episode(world, policy, init_index=init)
-    return {"suite": suite, "task": task_id, "knobs": knobs, "init": init, "success": bool(r.success),
+    r = run_policy_episode(world, policy, init_index=init, dart=dart)
+    return {"suite": suite, "task": task_id, "knobs": knobs, "init": init, "dart": dart, "success": bool(r.success),
             "steps": r.steps, "sim_error": bool(r.sim_error), "wall_s": round(r.wall_s, 2)}
 
 
@@ -61,7 +61,7 @@ def code_version() -> str:
 
 
 def read_log(path: Path, version: str) -> dict[tuple, dict]:
-    """Episodes already in ``path``, keyed by (suite, task, knobs, init). Refuses foreign code versions."""
+    """Episodes already in ``path``, keyed by (suite, task, knobs, init, dart). Refuses foreign code versions."""
     done: dict[tuple, dict] = {}
     if not path.exists():
         return done
@@ -70,7 +70,7 @@ def read_log(path: Path, version: str) -> dict[tuple, dict]:
             continue
         try:
             row = json.loads(line)
-            key = (row["suite"], int(row["task"]), row["knobs"], int(row["init"]))
+            key = (row["suite"], int(row["task"]), row["knobs"], int(row["init"]), float(row.get("dart", 0.0)))
         except (ValueError, KeyError, TypeError):
             if n == len(path.read_text().splitlines()):
                 continue  # a line cut short by a crash mid-write: that episode simply runs again
@@ -112,13 +112,16 @@ def run(args) -> dict:
     if first < 0:
         raise InvalidInput(f"--first-init must be >= 0, got {first}")
     settings = ["clean"] + ([] if args.no_misaligned else ["misaligned"])
+    dart = float(getattr(args, "dart", 0.0) or 0.0)
+    if not 0.0 <= dart <= 1.0:
+        raise InvalidInput(f"--dart must be a noise std in [0, 1] (action units), got {dart}")
     jobs = []
     for t in tasks:
         n_inits = len(get_task(suite, t).init_states())
         last = min(first + trials, n_inits)
         if last <= first:
             raise InvalidInput(f"task {t} of {suite} has {n_inits} init states; --first-init {first} is past them")
-        jobs += [(suite, t, k, i) for k in settings for i in range(first, last)]
+        jobs += [(suite, t, k, i, dart) for k in settings for i in range(first, last)]
     jobs.sort(key=lambda j: (j[1], j[2], j[3]))  # a task's episodes next to each other: one world per worker
 
     version = code_version()
@@ -147,6 +150,7 @@ def run(args) -> dict:
                 clean = [r["success"] for r in rows if r["knobs"] == "clean"]
                 progress.update(bar, advance=1, rate=f"{np.mean(clean):.2f}" if clean else "-")
     out = summarize(rows, suite, trials, first)
+    out["dart"] = dart
     out["wall_s"] = round(time.perf_counter() - start, 1)
     out["version"] = version
     return out
