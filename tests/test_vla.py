@@ -289,6 +289,13 @@ def test_train_vla_command_and_bench(annotated, tmp_path, capsys):
     (row,) = bench["rollouts"]
     assert row["task"] == "libero_10/5" and row["steps"] == 10 and row["start_seed"] >= start_seed("libero_10/5", 1000)
     assert bench["rollout_success"] == 0.0 and set(row["goal_status"]) == {"In(black_book_1, desk_caddy_1_back_contain_region)"}
+    # the Fig. 6 breakdown steers this checkpoint, at the size it was trained at
+    assert main(["bench", "runtime", "--policy", f"vla:{tmp_path / 'ship'}", "--tasks", "5", "--ks", "2",
+                 "--trials", "1", "--max-steps", "10", "--workers", "1"]) == 0
+    runtime = json.loads(capsys.readouterr().out)
+    assert runtime["image_size"] == 32 and runtime["rows"][0]["k"] == 2 and runtime["rows"][0]["sampling_ms"] > 0
+    assert main(["bench", "runtime", "--policy", f"vla:{tmp_path / 'ship'}", "--image-size", "64", "--ks", "1"]) != 0
+    assert "trained at 32 px" in capsys.readouterr().err
 
 
 # ---------------------------------------------------------------------------------------- the policy

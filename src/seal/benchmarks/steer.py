@@ -124,6 +124,14 @@ def run_runtime(args) -> dict:
     pixel = policy_name != "scripted"
     render = getattr(args, "render", None) or ("fast" if pixel else "stock")
     image_size = getattr(args, "image_size", None) or 64
+    if policy_name.startswith("vla"):  # a learned policy sees what it was trained on
+        from seal.policies.vla.checkpoint import read_config
+        from seal.policies.vla.locate import resolve_checkpoint
+
+        trained = read_config(resolve_checkpoint(policy_name.partition(":")[2])).image_size
+        if getattr(args, "image_size", None) not in (None, trained):
+            raise InvalidInput(f"--image-size {args.image_size}: the VLA checkpoint was trained at {trained} px")
+        image_size = trained
     task = _tasks(args, "5")[0]
     spec = get_task(args.suite, task)
     latencies = (0.0,) if pixel or not args.latency else (0.0, args.latency)
@@ -136,7 +144,8 @@ def run_runtime(args) -> dict:
                     pool.prepare_render((image_size,))  # set-up, not per-step time
                 verifier = OracleVerifier() if latency == 0 else FixedLatencyOracle(latency)
                 method = MethodSpec(method="seal", k=k, knobs="misaligned", render=render,
-                                    policy="vla" if policy_name.startswith("vla") else "scripted")
+                                    policy="vla" if policy_name.startswith("vla") else "scripted",
+                                    policy_ckpt=policy_name.partition(":")[2] if policy_name.startswith("vla") else "")
                 steps = wall = 0
                 timing = {"sampling_s": 0.0, "predict_s": 0.0, "verify_wait_s": 0.0, "physics_cpu_s": 0.0,
                           "render_cpu_s": 0.0}

@@ -88,6 +88,19 @@ def read_manifest(path: Path) -> dict:
     return manifest
 
 
+def read_config(path: Path) -> VLAConfig:
+    """The network's shape from a checkpoint directory's config.json (no weights are read)."""
+    path = Path(path)
+    try:
+        return VLAConfig.from_dict(json.loads((path / CONFIG).read_text()))
+    except FileNotFoundError:
+        raise InvalidInput(f"VLA checkpoint {path} lacks {CONFIG}") from None
+    except json.JSONDecodeError as exc:
+        raise InvalidInput(f"{path / CONFIG} is not valid JSON ({exc})") from None
+    except (TypeError, InvalidInput) as exc:
+        raise InvalidInput(f"{path / CONFIG}: {exc}") from None
+
+
 def load_checkpoint(path: Path, *, device: str | torch.device = "cpu") -> tuple[VLAModel, VLATokenizer, dict]:
     """(model in eval mode on ``device``, tokenizer, manifest); InvalidInput for anything wrong."""
     from safetensors import SafetensorError, safe_open
@@ -99,15 +112,7 @@ def load_checkpoint(path: Path, *, device: str | torch.device = "cpu") -> tuple[
     missing = [name for name in (WEIGHTS, CONFIG, TOKENIZER) if not (path / name).is_file()]
     if missing:
         raise InvalidInput(f"VLA checkpoint {path} lacks {', '.join(missing)}")
-    try:
-        raw = json.loads((path / CONFIG).read_text())
-        cfg = VLAConfig.from_dict(raw)
-    except json.JSONDecodeError as exc:
-        raise InvalidInput(f"{path / CONFIG} is not valid JSON ({exc})") from None
-    except TypeError as exc:
-        raise InvalidInput(f"{path / CONFIG}: {exc}") from None
-    except InvalidInput as exc:
-        raise InvalidInput(f"{path / CONFIG}: {exc}") from None
+    cfg = read_config(path)
     tokenizer = VLATokenizer.load(path / TOKENIZER)
     if tokenizer.vocab_size != cfg.vocab_size:
         raise InvalidInput(f"{path / TOKENIZER} has {tokenizer.vocab_size} tokens but {CONFIG} says vocab_size "
