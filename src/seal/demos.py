@@ -31,7 +31,7 @@ import numpy as np
 
 from seal.datasets import Episode, LeRobotWriter
 from seal.errors import InvalidInput
-from seal.episode import Recording, run_policy_episode
+from seal.episode import Recording, check_dart, run_policy_episode
 from seal.policies.expert.policy import FailureKnobs, ScriptedExpert
 from seal.sim.suites import get_task, task_count
 from seal.sim.world import LiberoWorld
@@ -147,12 +147,11 @@ def record_demos(suite: str, out: Path, *, episodes_per_task: int, tasks: list[i
         if not 1 <= episodes_per_task <= n:
             raise InvalidInput(f"{spec.key} has {n} init states; --episodes-per-task must be in 1..{n}, "
                                f"got {episodes_per_task}")
-    if not isinstance(dart, (int, float)) or isinstance(dart, bool) or not 0.0 <= dart <= 1.0:
-        raise InvalidInput(f"--dart must be a noise std in [0, 1] (action units), got {dart!r}")
+    dart = check_dart(dart)
     knobs = knobs or FailureKnobs()
     out.mkdir(parents=True, exist_ok=True)
     summary = RecordSummary()
-    attempted = _attempted(out, float(dart))  # refuses a resume with other settings before any work
+    attempted = _attempted(out, dart)  # refuses a resume with other settings before any work
     with LeRobotWriter(out, fps=20, image_size=image_size or 224) as writer:
         jobs = []
         for spec in specs:
@@ -161,7 +160,7 @@ def record_demos(suite: str, out: Path, *, episodes_per_task: int, tasks: list[i
             if progress:
                 progress(spec, summary, advance=episodes_per_task - len(todo))
             jobs += [_Job(suite, spec.task_id, e, None if starts == "official" else start_seed(spec.key, e),
-                          knobs, render_mode, image_size, float(dart)) for e in todo]
+                          knobs, render_mode, image_size, dart) for e in todo]
         # Blocks of BLOCK episodes per task, task after task, then the next block: a recording
         # stopped early (or read while it runs) holds every task about equally, and a worker
         # rebuilds its world only once per block.

@@ -47,6 +47,13 @@ class Recording:
     actions: list = field(default_factory=list)
 
 
+def check_dart(dart) -> float:
+    """A DART perturbation std as a float, or InvalidInput naming the valid range."""
+    if isinstance(dart, bool) or not isinstance(dart, (int, float)) or not 0.0 <= dart <= 1.0:
+        raise InvalidInput(f"--dart must be a noise std in [0, 1] (action units), got {dart!r}")
+    return float(dart)
+
+
 def run_policy_episode(world: LiberoWorld, policy, *, init_index: int, max_steps: int | None = None,
                        recording: Recording | None = None, video_path: Path | None = None,
                        progress=None, start_seed: int | None = None,
@@ -62,8 +69,7 @@ def run_policy_episode(world: LiberoWorld, policy, *, init_index: int, max_steps
     chunk so it adds up to a displacement the next chunk has to correct, while the recording
     keeps the policy's own action at every perturbed state. Imitation then sees how the expert
     recovers from the small errors a learned policy will make."""
-    if not 0.0 <= dart <= 1.0:
-        raise InvalidInput(f"dart must be a noise std in [0, 1] (action units), got {dart}")
+    dart = check_dart(dart)
     max_steps = max_steps or world.task.max_steps
     start = time.perf_counter()
     if start_seed is None:

@@ -112,9 +112,9 @@ def run(args) -> dict:
     if first < 0:
         raise InvalidInput(f"--first-init must be >= 0, got {first}")
     settings = ["clean"] + ([] if args.no_misaligned else ["misaligned"])
-    dart = float(getattr(args, "dart", 0.0) or 0.0)
-    if not 0.0 <= dart <= 1.0:
-        raise InvalidInput(f"--dart must be a noise std in [0, 1] (action units), got {dart}")
+    from seal.episode import check_dart
+
+    dart = check_dart(getattr(args, "dart", 0.0) or 0.0)
     jobs = []
     for t in tasks:
         n_inits = len(get_task(suite, t).init_states())

@@ -124,11 +124,13 @@ def run_runtime(args) -> dict:
     pixel = policy_name != "scripted"
     render = getattr(args, "render", None) or ("fast" if pixel else "stock")
     image_size = getattr(args, "image_size", None) or 64
-    if policy_name.startswith("vla"):  # a learned policy sees what it was trained on
+    learned = policy_name.startswith("vla")
+    ckpt = policy_name.partition(":")[2]  # vla:PATH; '' = the shipped reasoning model
+    if learned:  # a learned policy sees what it was trained on
         from seal.policies.vla.checkpoint import read_config
         from seal.policies.vla.locate import resolve_checkpoint
 
-        trained = read_config(resolve_checkpoint(policy_name.partition(":")[2])).image_size
+        trained = read_config(resolve_checkpoint(ckpt)).image_size
         if getattr(args, "image_size", None) not in (None, trained):
             raise InvalidInput(f"--image-size {args.image_size}: the VLA checkpoint was trained at {trained} px")
         image_size = trained
@@ -144,13 +146,12 @@ def run_runtime(args) -> dict:
                     pool.prepare_render((image_size,))  # set-up, not per-step time
                 verifier = OracleVerifier() if latency == 0 else FixedLatencyOracle(latency)
                 method = MethodSpec(method="seal", k=k, knobs="misaligned", render=render,
-                                    policy="vla" if policy_name.startswith("vla") else "scripted",
-                                    policy_ckpt=policy_name.partition(":")[2] if policy_name.startswith("vla") else "")
+                                    policy="vla" if learned else "scripted", policy_ckpt=ckpt if learned else "")
                 steps = wall = 0
                 timing = {"sampling_s": 0.0, "predict_s": 0.0, "verify_wait_s": 0.0, "physics_cpu_s": 0.0,
                           "render_cpu_s": 0.0}
                 for trial in range(trials):
-                    policy = make_policy(method.policy, method, spec, seed=trial) if policy_name.startswith("vla") \
+                    policy = make_policy(method.policy, method, spec, seed=trial) if learned \
                         else make_policy("scripted", method, spec, seed=0)
                     if policy_name == "pixels":
                         policy = PixelReadingExpert(policy, image_size)
