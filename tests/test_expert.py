@@ -82,8 +82,21 @@ def test_a_pixel_policy_gets_its_cameras_without_a_recording(book_world):
     from seal.benchmarks.steer import PixelReadingExpert
 
     policy = PixelReadingExpert(ScriptedExpert.for_world(book_world), 32)
-    result = run_policy_episode(book_world, policy, init_index=0, max_steps=10)
+    asked = []
+    observe = book_world.observe
+
+    def counting(*a, **kw):
+        asked.append(kw.get("images"))
+        return observe(*a, **kw)
+
+    book_world.observe = counting
+    try:
+        result = run_policy_episode(book_world, policy, init_index=0, max_steps=10)
+    finally:
+        del book_world.observe
     assert result.steps == 10 and policy.pixels_read == 2 * 32 * 32 * 3 * 2  # two chunks, two cameras
+    # rendered only where the policy looks: the start and each chunk's last step, not the 8 in between
+    assert asked.count(32) == 3 and asked.count(False) == 8
     with pytest.raises(InvalidInput, match="record at image_size=32"):
         run_policy_episode(book_world, policy, init_index=0, max_steps=5, recording=Recording(), image_size=64)
 

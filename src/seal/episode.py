@@ -91,6 +91,7 @@ def run_policy_episode(world: LiberoWorld, policy, *, init_index: int, max_steps
         raise InvalidInput(f"the policy sees {wanted}-px images but the recording asks for "
                            f"{'224' if need_images is True else need_images}-px frames; record at image_size={wanted}")
     need_images = wanted or need_images
+    every_frame = recording is not None or writer is not None
     try:
         obs = world.observe(images=need_images, privileged_atoms=atoms)
         reasoning = policy.reason(obs)
@@ -108,7 +109,8 @@ def run_policy_episode(world: LiberoWorld, policy, *, init_index: int, max_steps
             offset = np.zeros(7, dtype=np.float32)
             if dart:
                 offset[:6] = noise.normal(0.0, dart, 6)  # the gripper is never perturbed
-            for action in chunk.actions[:ACTION_HORIZON]:
+            actions = chunk.actions[:ACTION_HORIZON]
+            for i, action in enumerate(actions):
                 if recording is not None:
                     recording.agent.append(obs.agent)
                     recording.wrist.append(obs.wrist)
@@ -117,7 +119,9 @@ def run_policy_episode(world: LiberoWorld, policy, *, init_index: int, max_steps
                 if writer is not None and world.steps % 2 == 0:
                     writer.append_data(obs.agent)
                 world.step(np.clip(action + offset, -1.0, 1.0) if dart else action)
-                obs = world.observe(images=need_images, privileged_atoms=atoms)
+                # a policy alone looks only at the observation that ends a chunk: no renders in between
+                looked_at = every_frame or i == len(actions) - 1
+                obs = world.observe(images=need_images if looked_at else False, privileged_atoms=atoms)
                 _mark_critical(result, obs, policy, world.steps)
                 if progress is not None:
                     progress(world.steps, max_steps)
