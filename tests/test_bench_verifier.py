@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 
 import pytest
+from PIL import Image
 
 from _local_http import scrub_env, serving
 from _verifier_cases import make_row
@@ -55,6 +56,10 @@ def test_openai_scored_against_truth_and_never_paid_twice(server, cases, tmp_pat
     pin, pout = PRICES_PER_MTOK["gpt-4o"]
     assert first["cost_usd"] == pytest.approx(6 * (1200 * pin + 80 * pout) / 1e6)
     assert "| all | 6 |" in (tmp_path / "openai.md").read_text()
+    # beside the table, the three false successes as a contact sheet: three images per case
+    sheet = first["error_sheet"]
+    assert sheet == {"path": str(tmp_path / "openai_errors.png"), "shown": 3}
+    assert Image.open(sheet["path"]).size == (3 * 160, 3 * (160 + 28))
 
     again = _bench(capsys, *args)
     assert server.calls == 6  # every answer came from the cache

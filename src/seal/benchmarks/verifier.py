@@ -23,6 +23,8 @@ import asyncio
 import time
 from pathlib import Path
 
+import numpy as np
+
 from seal.errors import InvalidInput
 from seal.verify import dataset as ds
 from seal.verify.dataset import binary_metrics
@@ -80,8 +82,9 @@ async def _judge_all(verifier, requests, k: int):
     return verdicts, wall
 
 
-def score(verifier, data: Path, *, k: int = 10, limit: int | None = None) -> dict:
-    """Metrics of ``verifier`` on the cases under ``data``."""
+def score(verifier, data: Path, *, k: int = 10, limit: int | None = None, errors_png: Path | None = None) -> dict:
+    """Metrics of ``verifier`` on the cases under ``data``; with ``errors_png``, a contact sheet of
+    the cases it got wrong (`error_sheet`)."""
     cases = list(ds.iter_cases(data, limit=limit))
     if not cases:
         raise InvalidInput(f"{data} holds no cases")
@@ -108,7 +111,35 @@ def score(verifier, data: Path, *, k: int = 10, limit: int | None = None) -> dic
     out["cached"] = sum(bool(v.extra.get("cached")) for v in verdicts)
     out["cost_usd_uncached"] = round(out["cost_usd"] + sum(v.extra.get("original_cost_usd", 0.0) for v in verdicts), 6)
     out["errors"] = sum(bool(v.extra.get("error")) for v in verdicts)
+    if errors_png is not None:
+        wrong = [i for i, (label, verdict) in enumerate(zip(labels, verdicts)) if verdict.success is not label]
+        out["error_sheet"] = error_sheet([(requests[i], cases[i], verdicts[i]) for i in wrong], errors_png)
     return out
+
+
+def error_sheet(rows: list, path: Path, limit: int = 16, side: int = 160) -> dict:
+    """One line per wrong verdict, up to ``limit``: the three images the verifier saw (sub-plan start,
+    candidate's end, wrist at the end) and above them the case, the truth and the verdict. False
+    successes first: they are the costly mistakes (SEAL commits a wrong chunk)."""
+    from PIL import Image, ImageDraw
+
+    rows = sorted(rows, key=lambda r: r[1].label)[:limit]  # label False (a false success) first
+    head = 28
+    sheet = Image.new("RGB", (3 * side, max(1, len(rows)) * (side + head)), "white")
+    draw = ImageDraw.Draw(sheet)
+    for n, (request, case, verdict) in enumerate(rows):
+        y = n * (side + head)
+        for col, image in enumerate((request.first_agent, request.final_agent, request.final_wrist)):
+            sheet.paste(Image.fromarray(np.asarray(image)).resize((side, side)), (col * side, y + head))
+        truth = "success" if case.label else "failure"
+        said = {True: "success", False: "failure", None: "unknown"}[verdict.success]
+        draw.text((3, y + 2), f"{case.row['task']} | {case.row['subplan']}"[:78], fill="black")
+        draw.text((3, y + 14), f"truth {truth}, verifier said {said} {verdict.rationale}"[:78],
+                  fill="firebrick" if not case.label else "navy")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    sheet.save(path)
+    return {"path": str(path), "shown": len(rows)}
 
 
 def markdown(result: dict) -> str:
@@ -134,13 +165,14 @@ def markdown(result: dict) -> str:
 def run(args) -> dict:
     verifier = _build(args)
     data = Path(args.data) if getattr(args, "data", None) else heldout_set(args)
-    result = score(verifier, data, k=args.k, limit=getattr(args, "limit", None))
+    out = Path(args.out) if getattr(args, "out", None) else None
+    result = score(verifier, data, k=args.k, limit=getattr(args, "limit", None),
+                   errors_png=out.with_name(out.stem + "_errors.png") if out else None)
     if not getattr(args, "data", None):
         result["heldout"] = ("collected on the spot: fresh init states from the fresh-heldout seed range "
                              "(task_seed + 200000 + j), used by no training collection and no shipped init state")
-    if getattr(args, "out", None):
-        path = Path(args.out)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(markdown(result))
-        result["markdown"] = str(path)
+    if out is not None:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(markdown(result))
+        result["markdown"] = str(out)
     return result
