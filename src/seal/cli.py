@@ -82,11 +82,10 @@ def _stage_bars(names: dict[str, str], info):
     """A progress display for a training command: one bar per stage (``names``: stage -> label;
     stages not named are "training"), ``info(extra)`` the text beside it. Yields the callback
     ``progress(stage, done, total, extra=None)`` the trainers take."""
-    from rich.console import Console
     from seal.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                  TextColumn("{task.fields[info]}"), TimeRemainingColumn(), console=Console(stderr=True)) as bar:
+                  TextColumn("{task.fields[info]}"), TimeRemainingColumn()) as bar:
         jobs: dict = {}
 
         def progress(stage, done, total, extra=None):
@@ -120,7 +119,6 @@ def _cmd_train(args) -> int:
 
 
 def _cmd_verify(args) -> int:
-    from rich.console import Console
     from seal.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from seal.collect import CollectOptions, collect
@@ -133,8 +131,7 @@ def _cmd_verify(args) -> int:
                           inits_per_task=args.inits_per_task,
                           max_episodes=args.max_episodes, patience=args.patience, max_steps=args.max_steps,
                           workers=args.workers, method_settings=settings)
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  console=Console(stderr=True)) as bar:
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn()) as bar:
         job = bar.add_task("verification cases", total=len(opts.tasks) * opts.per_task)
 
         def progress(text, kept, total):

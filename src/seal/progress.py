@@ -3,7 +3,8 @@
 rich's `Progress` draws a live bar on a terminal and nothing at all otherwise until the job ends,
 so a recording or a training started in the background (``nohup ... > log``) showed no sign of
 life for hours. `Progress` here is rich's, plus one plain line per task every ``log_every``
-seconds when the console is not a terminal:
+seconds when the console is not a terminal. It writes to stderr unless given a console: stdout
+is where a command prints its JSON answer.
 
     [progress 00:12:31] recording libero_10: 140/500 (28%)
 """
@@ -13,12 +14,14 @@ from __future__ import annotations
 import time
 
 from rich import progress as _rich
+from rich.console import Console
 
 
 class Progress(_rich.Progress):
     """rich's progress display that also writes periodic plain lines when not on a terminal."""
 
     def __init__(self, *columns, log_every: float = 60.0, **kwargs):
+        kwargs.setdefault("console", Console(stderr=True))  # stdout is for a command's JSON answer
         super().__init__(*columns, **kwargs)
         self.log_every = float(log_every)
         self._t0 = time.monotonic()

@@ -134,12 +134,9 @@ def run(args) -> dict:
     from seal.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     start = time.perf_counter()
-    # Progress goes to stderr so stdout stays one JSON object.
-    from rich.console import Console
-
+    # (seal's Progress writes to stderr: stdout stays one JSON object)
     with Progress(TextColumn("expert {task.description}"), BarColumn(), MofNCompleteColumn(),
-                  TextColumn("success {task.fields[rate]}"), TimeRemainingColumn(),
-                  console=Console(stderr=True)) as progress:
+                  TextColumn("success {task.fields[rate]}"), TimeRemainingColumn()) as progress:
         bar = progress.add_task(suite, total=len(jobs), completed=len(rows), rate="-")
         with mp.get_context("spawn").Pool(workers) as pool, (log.open("a") if log else open(os.devnull, "w")) as fh:
             for row in pool.imap_unordered(_episode, todo, chunksize=1):
