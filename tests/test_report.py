@@ -115,6 +115,10 @@ def test_wilson_matches_published_values():
         got = wilson(x, n)
         assert got == pytest.approx((lo, hi), abs=5e-5), (x, n, got)
     assert wilson(10, 10) == pytest.approx((0.7225, 1.0), abs=5e-5)
+    # the ends are exact: computed, 0 of 7 gave a lower bound 1e-17 above the estimate 0 (a negative
+    # error bar, which matplotlib refuses)
+    for n in (3, 6, 7, 12, 14):
+        assert wilson(0, n)[0] == 0.0 and wilson(n, n)[1] == 1.0
     assert all(math.isnan(v) for v in wilson(0, 0))
     with pytest.raises(ValueError):
         wilson(3, 2)

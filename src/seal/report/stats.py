@@ -26,8 +26,11 @@ def wilson(successes: int, n: int, z: float = Z95) -> tuple[float, float]:
     z2 = z * z
     centre = (p + z2 / (2 * n)) / (1 + z2 / n)
     half = z * math.sqrt(p * (1 - p) / n + z2 / (4 * n * n)) / (1 + z2 / n)
-    # Clamp rounding noise at the ends (0/n must give exactly 0 as its lower bound).
-    return (max(0.0, centre - half), min(1.0, centre + half))
+    # At 0/n and n/n the bound is exactly the end: computed, it can land a rounding error inside
+    # [0, 1] (1e-17 above 0), which puts the interval just beside the estimate it must contain.
+    lo = 0.0 if successes == 0 else max(0.0, centre - half)
+    hi = 1.0 if successes == n else min(1.0, centre + half)
+    return (lo, hi)
 
 
 def mcnemar_exact(only_a: int, only_b: int) -> float:
