@@ -33,7 +33,11 @@ def success_plot(data: ReportData, tables: list[SuccessTable], path: Path) -> Pa
     """Grouped bars: pooled success per suite (groups) and method (bars), Wilson 95% error bars;
     the paper's average for the matching method as a white diamond on the bar."""
     methods = data.methods
-    fig = Figure(figsize=(max(6.0, 1.2 * len(tables) * max(1, len(methods)) * 0.6 + 2), 4.2), dpi=110)
+    # The legend sits under the axes: method labels are long (every setting that differs is in
+    # them) and beside the axes they squeezed a one-suite plot to a sliver.
+    entries = len(methods) + 1
+    fig = Figure(figsize=(max(7.0, 1.2 * len(tables) * max(1, len(methods)) * 0.6 + 2), 4.2 + 0.22 * entries),
+                 dpi=110)
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
     width = 0.8 / max(1, len(methods))
@@ -61,7 +65,7 @@ def success_plot(data: ReportData, tables: list[SuccessTable], path: Path) -> Pa
     ax.set_ylim(0, 105)
     ax.set_ylabel("success (%)")
     ax.set_title("Success per suite (all trials pooled, Wilson 95% CI)")
-    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=1, frameon=False)
     ax.grid(axis="y", alpha=0.3)
     fig.tight_layout()
     fig.savefig(path)
