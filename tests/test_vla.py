@@ -355,3 +355,22 @@ def test_twin_policy_and_missing_checkpoints(tok, tmp_path, monkeypatch):
     with pytest.raises(InvalidInput, match=r"no shipped checkpoint yet .*train one with `seal train vla` or pass vla:PATH"):
         MethodSpec(policy="vla").config_hash
     assert MethodSpec(policy="vla:twin").policy_ckpt == "twin"
+
+
+def test_a_vla_runs_in_the_render_model_it_was_trained_in():
+    """The shipped models learned from fast-rendered demonstrations: a method that names no render
+    model gets theirs, and one that names another is told its pixels are out of distribution."""
+    from seal.sim.fast_assets import CACHE_VERSION
+    from seal.train.vla import recorded_render
+
+    twin = MethodSpec(policy="vla:twin")
+    assert twin.render == "fast" and twin.render_warning() is None
+    assert twin.config_hash == MethodSpec(policy="vla:twin", render="fast").config_hash  # stores keep their hashes
+    assert "trained on fast-rendered demonstrations" in MethodSpec(policy="vla:twin", render="stock").render_warning()
+    assert MethodSpec().render == "stock" and MethodSpec(render="fast").render_warning() is None
+    # what `seal train vla` writes into the manifest, from the recording's episode metadata
+    fast = {"render_mode": "fast", "fast_version": CACHE_VERSION}
+    assert recorded_render([fast, fast]) == {"mode": "fast", "fast_version": CACHE_VERSION}
+    assert recorded_render([{}]) == {"mode": "stock", "fast_version": None}  # recordings before the field
+    with pytest.raises(InvalidInput, match="recorded in different render models"):
+        recorded_render([fast, {"render_mode": "stock"}])

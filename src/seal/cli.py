@@ -21,6 +21,7 @@ def _cmd_run(args) -> int:
 
     spec = MethodSpec(method=args.method, **_method_settings(args))
     console = Console(stderr=True)
+    _warn_render([spec])
     title = f"{spec.method} on {args.suite}/{args.task} init {args.init} (K={spec.effective_k})"
     with console.status(title) as status:
         progress = ProgressReporter(lambda text: status.update(f"{title}: {text}"))
@@ -32,6 +33,13 @@ def _cmd_run(args) -> int:
             "timing", "trace")
     print(json.dumps({k: getattr(result, k) for k in keys}, indent=2))
     return 0
+
+
+def _warn_render(specs) -> None:
+    """Say so (once per method) when a learned policy will see pixels unlike its training data."""
+    for spec in specs:
+        if (text := spec.render_warning()) is not None:
+            print(f"seal: warning: {spec.label}: {text}", file=sys.stderr)
 
 
 def _cmd_ground(args) -> int:
@@ -218,6 +226,7 @@ def _cmd_eval(args) -> int:
     from seal.steer.method import parse_methods
 
     methods = parse_methods(args.methods, **_method_settings(args))
+    _warn_render(methods)
     suites = [s.strip() for s in args.suite.split(",") if s.strip()]
     tasks = None
     if args.tasks:  # the same ids in every suite: each must have them
@@ -372,7 +381,8 @@ _METHOD_OPTIONS = (
     ("--subplan-budget", int, "control steps one candidate may spend on one sub-plan (default 200)"),
     ("--mode", str, "sync (default) | replay: execute winners in a separate evaluation world"),
     ("--mismatch", _mismatch, "prediction physics scales 'friction,mass,damping', e.g. 1.3,0.8,1.2"),
-    ("--render", str, "render model: stock (default) | fast"),
+    ("--render", str, "render model: stock | fast (default: the policy's own, i.e. the one a learned VLA's "
+                      "demonstrations were recorded in, else stock)"),
     ("--check-every", int, "policies without <think>: steps between mid-rollout verifier checks (default 20)"),
     ("--verifier", str, "oracle (default) | openai | gemini | noisy | learned[:RUN_DIR]"),
     ("--model", str, "VLM model name (openai/gemini verifiers); learned: checkpoint directory"),

@@ -33,6 +33,7 @@ from seal.datasets import Episode, LeRobotWriter
 from seal.errors import InvalidInput
 from seal.episode import Recording, check_dart, run_policy_episode
 from seal.policies.expert.policy import FailureKnobs, ScriptedExpert
+from seal.sim.fast_assets import CACHE_VERSION as FAST_VERSION
 from seal.sim.suites import get_task, task_count
 from seal.sim.world import LiberoWorld
 
@@ -114,6 +115,8 @@ def _run_job(job: _Job) -> tuple[_Job, dict, Episode | None]:
         meta={"suite": job.suite, "task_id": job.task_id, "init_index": job.episode,
               "start": "official" if job.start_seed is None else "sampled", "start_seed": result.start_seed,
               "render_mode": job.render_mode, "image_size": job.image_size or 224,
+              # the fast model's meshes change between versions; a policy trained on them is evaluated in the same
+              "fast_version": FAST_VERSION if job.render_mode == "fast" else None,
               "steps": result.steps, "success": bool(result.success), "knobs": job.knobs.__dict__,
               # executed chunks were perturbed by this std; recorded actions are the expert's own
               "dart": job.dart,

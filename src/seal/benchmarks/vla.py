@@ -222,9 +222,11 @@ def run(args) -> dict:
     else:
         out["heldout"] = "no --annotations given: subplan_accuracy and action_mse are null"
     if getattr(args, "rollouts", 0):
+        from seal.policies.vla.locate import trained_render
+
         if not args.ckpt:
             raise InvalidInput("--rollouts needs --ckpt: a random-init model has nothing to show")
-        out |= rollouts(str(path), tasks=args.tasks, n=int(args.rollouts), render=args.render or "fast",
+        out |= rollouts(str(path), tasks=args.tasks, n=int(args.rollouts), render=args.render or trained_render(str(path))["mode"],
                         max_steps=getattr(args, "max_steps", None))
     return out
 

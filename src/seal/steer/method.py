@@ -53,7 +53,8 @@ class MethodSpec:
     policy: str = "scripted"
     knobs: str = "misaligned"  # the scripted expert's failure setting
     mode: str = "sync"
-    render: str = "stock"
+    # None: the policy's own (a learned VLA: the model its demonstrations were recorded in; else stock)
+    render: str | None = None
     value_ckpt: str = ""  # value only: a `seal train value` checkpoint (file or run directory)
     value_goal: str = "task"  # value only: what the Q-function is conditioned on (task or subplan)
     # -- added later (see _LATER) --
@@ -93,6 +94,8 @@ class MethodSpec:
         _one_of("knobs setting", self.knobs, KNOBS)
         _one_of("mode", self.mode, MODES)
         _one_of("value_goal", self.value_goal, VALUE_GOALS)
+        if self.render is None:
+            object.__setattr__(self, "render", self._policy_render() or "stock")
         _one_of("render", self.render, RENDERS)
         _one_of("planner", self.planner, PLANNERS)
         _one_of("prompt", self.prompt, PROMPTS)
@@ -109,6 +112,31 @@ class MethodSpec:
         if self.request_timeout <= 0:
             raise InvalidInput(f"request_timeout must be > 0, got {self.request_timeout}")
         self.steer_config()  # the loop's own checks (k, rounds, budgets)
+
+    def _policy_render(self) -> str | None:
+        """The render model a learned policy was trained in (None: it has no preference)."""
+        if self.policy != "vla":
+            return None
+        from seal.policies.vla.locate import trained_render
+
+        return trained_render(self.policy_ckpt)["mode"]
+
+    def render_warning(self) -> str | None:
+        """Why these pixels differ from the ones the policy learned from, or None when they do not."""
+        if self.policy != "vla":
+            return None
+        from seal.policies.vla.locate import trained_render
+        from seal.sim.fast_assets import CACHE_VERSION
+
+        trained = trained_render(self.policy_ckpt)
+        name = self.policy_ckpt or "the shipped reasoning VLA"
+        if trained["mode"] != self.render:
+            return (f"{name} was trained on {trained['mode']}-rendered demonstrations but runs with render "
+                    f"{self.render!r}: its inputs are out of distribution (leave --render out to use {trained['mode']!r})")
+        if self.render == "fast" and trained["fast_version"] not in (None, CACHE_VERSION):
+            return (f"{name} was trained on fast render v{trained['fast_version']}; this code renders fast "
+                    f"v{CACHE_VERSION}: its inputs differ from its training pixels")
+        return None
 
     # ---- what the pieces get ------------------------------------------------------------------
     def steer_config(self, *, seed: int = 0, max_steps: int | None = None):

@@ -368,6 +368,18 @@ def _succeeded(meta: dict) -> bool:
 
 
 
+def recorded_render(metas: list[dict]) -> dict:
+    """The render model the demonstrations were recorded in ({"mode", "fast_version"}): a pixel
+    policy is evaluated in the same one (`MethodSpec` defaults to it). Mixed recordings are refused:
+    the policy would be trained on two kinds of pixels and evaluated in one."""
+    seen = {(m.get("render_mode", "stock"), m.get("fast_version")) for m in metas}
+    if len(seen) > 1:
+        raise InvalidInput(f"the episodes were recorded in different render models {sorted(seen, key=str)}; "
+                           "annotate and train on one recording")
+    mode, version = seen.pop() if seen else ("stock", None)
+    return {"mode": mode, "fast_version": version}
+
+
 def train_vla(dataset: Path | None, annotations: Path, out: Path, cfg: TrainConfig, model_cfg: VLAConfig,
               *, cache: Path | None = None, progress=None, command: str = "") -> dict:
     """Train (or resume) a VLA into run directory ``out``; returns the summary (also summary.json).
@@ -426,6 +438,7 @@ def train_vla(dataset: Path | None, annotations: Path, out: Path, cfg: TrainConf
         model.set_normalization(s.mean(0), s.std(0), a.mean(0), a.std(0))
         (out / METRICS).unlink(missing_ok=True)
     manifest = {"command": command, "dataset": str(Path(ann.source.root).resolve()),
+                "render": recorded_render([ann.source.episode_meta(e) for e in episodes]),
                 "annotations": str(Path(annotations).resolve()), "train_episodes": len(train_eps),
                 "failed_demos_left_out": len(annotated) - len(episodes),
                 "heldout_episodes": held_eps, "train_frames": n_train, "code_version": _code_version(),

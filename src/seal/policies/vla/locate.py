@@ -49,3 +49,14 @@ def checkpoint_digest(spec: str = "") -> str:
     if not isinstance(sha, str) or not sha:
         raise InvalidInput(f"{path / MANIFEST} records no weights_sha256")
     return sha[:12]
+
+
+def trained_render(spec: str = "") -> dict:
+    """The render model a checkpoint's demonstrations were recorded in: ``{"mode": "stock"|"fast",
+    "fast_version": int|None}`` from its manifest (``stock`` when the manifest predates the field)."""
+    path = resolve_checkpoint(spec)
+    try:
+        render = json.loads((path / MANIFEST).read_text()).get("render") or {}
+    except json.JSONDecodeError as exc:
+        raise InvalidInput(f"{path / MANIFEST} is not valid JSON ({exc})") from None
+    return {"mode": render.get("mode", "stock"), "fast_version": render.get("fast_version")}
