@@ -154,3 +154,55 @@ def test_random_method_picks_one_finished_candidate_unverified(pool, tmp_path):
     assert commits and all(c["verdict"] is None for c in commits)
     first_round = [e for e in trace if e["event"] == "candidate"][:4]
     assert commits[0]["slot"] in {c["slot"] for c in first_round if c["ended_by"] != "error"}
+
+
+SOUP = get_task("libero_10", 0)
+SOUP_PLANS = ("pick up the alphabet soup", "place it in the basket", "pick up the tomato sauce", "place it in the basket")
+
+
+class SkipsAhead:
+    """The scripted expert, but its reasoning says three sub-plans are done (a learned VLA wrote this in
+    evaluation): the second "place it in the basket" is the one to do now."""
+
+    def __init__(self, expert):
+        self.expert = expert
+        self.thinks = expert.thinks
+
+    def __getattr__(self, name):
+        return getattr(self.expert, name)
+
+    def reason(self, obs):
+        from seal.policies.base import Reasoning
+
+        self.own = self.expert.reason(obs)
+        return Reasoning(plans=SOUP_PLANS, done=SOUP_PLANS[:3], now=SOUP_PLANS[3])
+
+    def act(self, obs_batch, reasoning, rows=None):  # the expert acts on its own sub-plan
+        return self.expert.act(obs_batch, self.own, rows)
+
+
+class Requests:
+    def __init__(self):
+        self.seen = []
+
+    def on_event(self, event, fields):
+        if event == "verify_request":
+            self.seen.append(fields["request"])
+
+
+def test_a_repeated_subplan_is_judged_where_the_policy_stands_in_its_plan(tmp_path):
+    """Two "place it in the basket" in one plan: after three done items, "it" is the tomato sauce
+    (not the soup of the first one), for the verifier and for the alignment audit alike."""
+    from seal.policies.base import Reasoning
+
+    assert Reasoning(plans=SOUP_PLANS, done=SOUP_PLANS[:3], now=SOUP_PLANS[3]).index == 3
+    assert Reasoning(plans=SOUP_PLANS, done=SOUP_PLANS[:1], now=SOUP_PLANS[1]).index == 1
+    assert Reasoning(plans=SOUP_PLANS, done=(), now="open the drawer").index is None
+    requests = Requests()
+    with EnvPool(SOUP, k=2, workers=1) as pool:
+        Steerer(pool, SkipsAhead(expert_policy(SOUP, FailureKnobs(), seed=0)), OracleVerifier(),
+                SteerConfig(method="seal", k=2, rounds=1, subplan_budget=10, max_steps=10),
+                subscribers=(requests,)).run(0)
+    assert requests.seen and all(r.index == 3 for r in requests.seen)
+    verdict = asyncio.run(OracleVerifier().verify(requests.seen[0]))
+    assert "tomato_sauce_1" in verdict.rationale and not verdict.success

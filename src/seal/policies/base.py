@@ -42,6 +42,17 @@ class Reasoning:
     def finished(self) -> bool:
         return not self.now
 
+    @property
+    def index(self) -> int | None:
+        """Where ``now`` stands in ``plans``, None when it is not in them. Plans repeat texts (two
+        "place it in the basket"), and what "it" means depends on which one: the policy says where it
+        is by what it lists as done, so it is the first occurrence after the done items (or the
+        first at all when the done list runs past it)."""
+        positions = [i for i, p in enumerate(self.plans) if p == self.now]
+        if not positions:
+            return None
+        return next((i for i in positions if i >= len(self.done)), positions[0])
+
     def text(self) -> str:
         """The reasoning as the policy writes it between <think> and <act>."""
         plans = " ".join(f"{i + 1}. {p}." for i, p in enumerate(self.plans))

@@ -300,7 +300,7 @@ class Steerer:
         """What the verifier judges: the sub-plan and the candidate's slot as it is now."""
         reasoning = sub.reasoning
         request = VerifyRequest(subplan=reasoning.now, instruction=self.pool.task.instruction, plans=reasoning.plans,
-                                index=reasoning.plans.index(reasoning.now) if reasoning.now in reasoning.plans else None,
+                                index=reasoning.index,
                                 first_agent=sub.first_agent, task=self.pool.task.key, candidate=c.slot)
         atoms = self.verifier.atoms_needed(request, self._objects)
         final = self._observe(c.slot, images=self.verifier.needs_images, atoms=atoms)
@@ -382,9 +382,7 @@ class Steerer:
         policy that writes none, like the non-reasoning twin) is not audited: that is task success."""
         if reasoning.now.strip().lower() == self.pool.task.instruction.strip().lower():
             return None
-        plans = tuple(reasoning.plans)
-        index = plans.index(reasoning.now) if reasoning.now in plans else None
-        atoms = [str(a) for a in ground(reasoning.now, plans, self._objects, index).atoms]
+        atoms = [str(a) for a in ground(reasoning.now, tuple(reasoning.plans), self._objects, reasoning.index).atoms]
         if not atoms:
             return None
         return all(self.pool.check(atoms, slots=[0])[0].values())
