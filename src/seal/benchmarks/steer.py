@@ -147,7 +147,7 @@ def run_runtime(args) -> dict:
                 verifier = OracleVerifier() if latency == 0 else FixedLatencyOracle(latency)
                 method = MethodSpec(method="seal", k=k, knobs="misaligned", render=render,
                                     policy="vla" if learned else "scripted", policy_ckpt=ckpt if learned else "")
-                steps = wall = 0
+                steps = wall = succeeded = 0
                 timing = {"sampling_s": 0.0, "predict_s": 0.0, "verify_wait_s": 0.0, "physics_cpu_s": 0.0,
                           "render_cpu_s": 0.0}
                 for trial in range(trials):
@@ -162,6 +162,7 @@ def run_runtime(args) -> dict:
                     finally:
                         policy.close()
                     steps += max(r.steps, 1)
+                    succeeded += bool(r.success)
                     wall += r.wall_s
                     for key in timing:
                         timing[key] += r.timing.get(key, 0.0)
@@ -174,7 +175,9 @@ def run_runtime(args) -> dict:
                          "render_ms": round(timing["predict_s"] * render_share * per, 2),
                          "predict_ms": round(timing["predict_s"] * (1 - render_share) * per, 2),
                          "verify_ms": round(timing["verify_wait_s"] * per, 2),
-                         "total_ms": round(wall * per, 2)})
+                         "total_ms": round(wall * per, 2),
+                         # what the per-step figures average over (a failing episode runs to max_steps)
+                         "executed_steps": steps, "episodes_succeeded": succeeded})
     oracle_rows = {r["k"]: r for r in rows if r["verifier_latency_s"] == 0}
     ratio = None
     if 1 in oracle_rows and 10 in oracle_rows and oracle_rows[1]["predict_ms"] + oracle_rows[1]["render_ms"] > 0:
