@@ -334,6 +334,16 @@ def test_policy_implements_the_protocol(tok, tmp_path):
     assert max(np.abs(h.actions - a.actions).max() for h, a in zip(half, again)) < 0.15
     with pytest.raises(InvalidInput, match="both camera images"):
         policy.act([Observation(state=np.zeros(8), prompt=INSTRUCTION)], reasoning)
+    # a think head that always says "done": never on a row's first chunk of an attempt (it just wrote <act>)
+    with torch.no_grad():
+        policy.model.think_head[-1].weight.zero_()
+        policy.model.think_head[-1].bias.fill_(20.0)
+    policy.begin(2)
+    assert [c.think for c in policy.act([obs, obs], reasoning)] == [False, False]
+    assert [c.think for c in policy.act([obs], reasoning, rows=[1])] == [True]
+    assert [c.think for c in policy.act([obs, obs], reasoning)] == [True, True]  # row 0's second, row 1's third
+    policy.begin(2)  # a new round starts from the sub-plan's first observation again
+    assert [c.think for c in policy.act([obs, obs], reasoning)] == [False, False]
 
 
 def test_twin_policy_and_missing_checkpoints(tok, tmp_path, monkeypatch):

@@ -13,7 +13,12 @@ each `Observation`; ``privileged_atoms()`` is None, so the loop never hands it a
   the start of a round) share one prefix + reasoning encode, whose expert keys/values serve all
   K noise draws without being copied; rows with their own observation (later chunks) are
   encoded together as one batch. Each row gets
-  a (16, 7) chunk in [-1, 1] and ``think`` from the learned head (p > 0.5).
+  a (16, 7) chunk in [-1, 1] and ``think`` from the learned head (p > 0.5), except on a row's first
+  chunk of an attempt: the model has just written ``<act>`` for that observation, and in pi0-reason's
+  grammar a chunk follows every ``<act>``. Without this rule a reasoning text the think head judged
+  stale made the model think again before acting, greedy decoding of the unchanged observation wrote
+  the same text, and the loop's idle guard ended the episode: 52 of the 93 failed episodes of the
+  first LIBERO-10 evaluation of the reasoning VLA ended that way, some after 25 steps.
 
 The non-reasoning twin (config ``reasoning=False``, the pi0 baseline) cannot write sub-plans and
 declares ``thinks = False``: the steering loop then ends its sub-plans by the verifier's
@@ -84,6 +89,7 @@ class VLAPolicy:
         self._episode_seed = 0
         self._attempts = 0
         self._gens: list[torch.Generator] = []
+        self._chunks: list[int] = []
         self._ids: dict[str, tuple[np.ndarray, np.ndarray, int]] = {}
 
     @classmethod
@@ -111,6 +117,7 @@ class VLAPolicy:
         self._episode_seed = int(seed)
         self._attempts = 0
         self._gens = []
+        self._chunks = []
         if self.planner is not None:
             self.planner.reset(instruction)
 
@@ -129,6 +136,7 @@ class VLAPolicy:
         if k < 1:
             raise InvalidInput(f"begin needs k >= 1, got {k}")
         self._attempts += 1
+        self._chunks = [0] * k  # chunks each row has been given in this attempt
         self._gens = [torch.Generator().manual_seed(int(np.random.SeedSequence(
             [self.seed, self._episode_seed, self._attempts, row]).generate_state(1)[0])) for row in range(k)]
 
@@ -158,6 +166,9 @@ class VLAPolicy:
         actions = actions.clamp(-1.0, 1.0).cpu().numpy()
         think = ([False] * len(rows) if cond.think_logit is None
                  else (torch.sigmoid(cond.think_logit.float()) > 0.5).expand(len(rows)).cpu().tolist())
+        think = [bool(t) and self._chunks[r] > 0 for t, r in zip(think, rows)]  # first chunk: just wrote <act>
+        for r in rows:
+            self._chunks[r] += 1
         return [ActionChunk(actions=a.astype(np.float32), think=bool(t)) for a, t in zip(actions, think)]
 
     # -- building blocks (also used by `seal bench vla` and the trainer's evaluation) ---------------
