@@ -18,6 +18,7 @@ import numpy as np
 
 from seal.errors import InvalidInput
 from seal.sim.suites import SUITES, TaskSpec, get_task, list_tasks, parse_task_ids, task_count
+from seal.steer.grid import label_font
 
 TILE = 224  # the policy image size
 CAPTION_H = 84
@@ -43,15 +44,6 @@ def first_frame(spec: TaskSpec, init_index: int = 0) -> np.ndarray:
         world.close()
 
 
-def _font(size: int):
-    from PIL import ImageFont
-
-    try:
-        return ImageFont.load_default(size=size)
-    except TypeError:  # Pillow without FreeType sizes
-        return ImageFont.load_default()
-
-
 def contact_sheet(frames: list[tuple[TaskSpec, np.ndarray]], title: str = ""):
     """A PIL image: one tile per task, its caption (key, instruction, change) below it."""
     from PIL import Image, ImageDraw
@@ -62,8 +54,8 @@ def contact_sheet(frames: list[tuple[TaskSpec, np.ndarray]], title: str = ""):
     sheet = Image.new("RGB", (cols * TILE, head + rows * (TILE + CAPTION_H)), "white")
     draw = ImageDraw.Draw(sheet)
     if title:
-        draw.text((6, 6), title, fill="black", font=_font(16))
-    small, tiny = _font(12), _font(10)
+        draw.text((6, 6), title, fill="black", font=label_font(16))
+    small, tiny = label_font(12), label_font(10)
     for i, (spec, img) in enumerate(frames):
         x, y = (i % COLUMNS) * TILE, head + (i // COLUMNS) * (TILE + CAPTION_H)
         sheet.paste(Image.fromarray(np.asarray(img, dtype=np.uint8)), (x, y))

@@ -123,19 +123,22 @@ def error_sheet(rows: list, path: Path, limit: int = 16, side: int = 160) -> dic
     successes first: they are the costly mistakes (SEAL commits a wrong chunk)."""
     from PIL import Image, ImageDraw
 
+    from seal.steer.grid import label_font
+
     rows = sorted(rows, key=lambda r: r[1].label)[:limit]  # label False (a false success) first
     head = 28
     sheet = Image.new("RGB", (3 * side, max(1, len(rows)) * (side + head)), "white")
     draw = ImageDraw.Draw(sheet)
+    font = label_font(11)
     for n, (request, case, verdict) in enumerate(rows):
         y = n * (side + head)
         for col, image in enumerate((request.first_agent, request.final_agent, request.final_wrist)):
             sheet.paste(Image.fromarray(np.asarray(image)).resize((side, side)), (col * side, y + head))
         truth = "success" if case.label else "failure"
         said = {True: "success", False: "failure", None: "unknown"}[verdict.success]
-        draw.text((3, y + 2), f"{case.row['task']} | {case.row['subplan']}"[:78], fill="black")
+        draw.text((3, y + 2), f"{case.row['task']} | {case.row['subplan']}"[:78], fill="black", font=font)
         draw.text((3, y + 14), f"truth {truth}, verifier said {said} {verdict.rationale}"[:78],
-                  fill="firebrick" if not case.label else "navy")
+                  fill="firebrick" if not case.label else "navy", font=font)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     sheet.save(path)
