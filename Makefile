@@ -24,8 +24,10 @@ install-chromium:
 
 install: $(BIN)/seal install-chromium
 
+# SEAL steering the shipped learned reasoning VLA (fast render, the model it was trained in) with the
+# oracle verifier: ~35 s on the 2-core machine (docs/performance.md, "make run").
 run: install
-	$(BIN)/seal run --suite libero_10 --task 0 --method seal --k 10 --verifier oracle --out runs/demo
+	$(BIN)/seal run --suite libero_10 --task 5 --method seal --k 10 --policy vla --verifier oracle --out runs/demo
 
 test: install
 	$(BIN)/python -m pytest -q
