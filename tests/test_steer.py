@@ -49,6 +49,7 @@ def test_seal_episode_commits_verified_winners(pool, tmp_path):
     commits = [e for e in trace if e["event"] == "commit"]
     assert all(c["verdict"]["success"] for c in commits)  # nothing unverified was executed
     assert commits[-1]["steps"] == result.steps == len(result.executed_actions)
+    assert result.ended_by == trace[-1]["ended_by"] == "goal_holds"
     cands = [e for e in trace if e["event"] == "candidate"]
     assert {c["ended_by"] for c in cands} <= {"think", "budget", "step_limit", "task_success", "stopped", "error"}
     assert result.verifier_calls >= 2
@@ -200,9 +201,38 @@ def test_a_repeated_subplan_is_judged_where_the_policy_stands_in_its_plan(tmp_pa
     assert Reasoning(plans=SOUP_PLANS, done=(), now="open the drawer").index is None
     requests = Requests()
     with EnvPool(SOUP, k=2, workers=1) as pool:
-        Steerer(pool, SkipsAhead(expert_policy(SOUP, FailureKnobs(), seed=0)), OracleVerifier(),
+        result = Steerer(pool, SkipsAhead(expert_policy(SOUP, FailureKnobs(), seed=0)), OracleVerifier(),
                 SteerConfig(method="seal", k=2, rounds=1, subplan_budget=10, max_steps=10),
                 subscribers=(requests,)).run(0)
     assert requests.seen and all(r.index == 3 for r in requests.seen)
+    assert result.ended_by == "step_limit"
     verdict = asyncio.run(OracleVerifier().verify(requests.seen[0]))
     assert "tomato_sauce_1" in verdict.rationale and not verdict.success
+
+
+class DeclaresDoneEarly:
+    """The scripted expert, but after its first sub-plan it writes that the task is complete (the
+    learned VLA does this: a hallucinated completion)."""
+
+    def __init__(self, expert):
+        self.expert, self.thinks, self.calls = expert, expert.thinks, 0
+
+    def __getattr__(self, name):
+        return getattr(self.expert, name)
+
+    def reason(self, obs):
+        from seal.policies.base import Reasoning
+
+        self.calls += 1
+        own = self.expert.reason(obs)
+        return own if self.calls == 1 else Reasoning(plans=own.plans, done=own.plans, now="")
+
+
+def test_an_episode_says_why_it_ended(pool, tmp_path):
+    policy = DeclaresDoneEarly(expert_policy(BOOK, FailureKnobs(), seed=0))
+    with Trace(tmp_path / "trace.jsonl") as trace:
+        result = Steerer(pool, policy, None, SteerConfig(method="base", k=4), trace=trace).run(0)
+    end = read_trace(tmp_path / "trace.jsonl")[-1]
+    assert not result.success and result.ended_by == end["ended_by"] == "policy_finished"
+    assert "Now I need to do: the task is complete." in end["reasoning"] == result.last_reasoning
+    assert 0 < result.steps < BOOK.max_steps

@@ -272,7 +272,10 @@ def _trace_html(events: list[dict], grids_dir: Path, ident: str, media: MediaPla
                        f'{"success" if ok else "failure"}</span> after {esc(ev.get("steps"))} steps'
                        f'{" (simulator error)" if ev.get("sim_error") else ""}, t={esc(ev.get("t"))} s'
                        f'{", verifier errors: " + esc(ev.get("verifier_errors")) if ev.get("verifier_errors") else ""}'
+                       f'{"; ended by " + esc(ev.get("ended_by")) if ev.get("ended_by") else ""}'
                        "</p>")
+            if ev.get("reasoning"):  # the policy's text that declared the task complete
+                out.append(f"<pre>{esc(ev.get('reasoning'))}</pre>")
     flush()
     return "\n".join(out) if out else '<p class="note">The trace is empty.</p>'
 

@@ -112,6 +112,10 @@ class SteerResult:
                                                   "physics_cpu_s": 0.0, "render_cpu_s": 0.0})
     executed_actions: list = field(default_factory=list)
     trace: str = ""
+    # why the loop stopped: goal_holds | policy_finished (the policy wrote "the task is complete") |
+    # step_limit | idle (it kept thinking without acting) | sim_error
+    ended_by: str = ""
+    last_reasoning: str = ""  # with policy_finished: the text that said so
 
 
 
@@ -163,6 +167,7 @@ class Steerer:
         scene = self._observe(0, images=False, atoms=[]).scene  # names only, for grounding
         self._objects = sorted(set(scene.bodies) | set(scene.sites))
         idle = 0
+        result.ended_by = "step_limit"  # unless something below ends it first
         background = BackgroundVerifier(self.verifier) if self.verifier is not None else None
         try:
             while committed.steps < max_steps:
@@ -176,6 +181,7 @@ class Steerer:
                 if not result.subplans:
                     result.subplans = list(reasoning.plans)
                 if reasoning.finished:
+                    result.ended_by, result.last_reasoning = "policy_finished", reasoning.text()
                     break
                 self._subplan_index += 1
                 self.emit("subplan", step=committed.steps, text=reasoning.now, reasoning=reasoning.text())
@@ -183,15 +189,17 @@ class Steerer:
                               first_agent=first_agent)
                 winner = self.selection.run_subplan(self, sub)
                 if winner is None:  # every candidate hit a simulator error
-                    result.sim_error = True
+                    result.sim_error, result.ended_by = True, "sim_error"
                     break
                 committed = self._commit(winner, committed, result, reasoning)
                 task_done = pool.check([str(a) for a in self._goal_atoms()], slots=[0])[0]
                 if all(task_done.values()):
+                    result.ended_by = "goal_holds"
                     break
                 # A policy that keeps switching to <think> without acting would loop forever.
                 idle = idle + 1 if winner.steps == 0 else 0
                 if idle > len(result.subplans) + 2:
+                    result.ended_by = "idle"
                     break
         finally:
             if background is not None:
@@ -204,6 +212,7 @@ class Steerer:
         result.steps = committed.steps
         result.wall_s = round(time.perf_counter() - start, 3)
         self.emit("episode_end", success=result.success, steps=result.steps, sim_error=result.sim_error,
+                  ended_by=result.ended_by, **({"reasoning": result.last_reasoning} if result.last_reasoning else {}),
                   verifier_calls=result.verifier_calls, verifier_errors=result.verifier_errors,
                   verifier_unavailable=result.verifier_unavailable, fallbacks=result.fallbacks)
         return result

@@ -11,7 +11,8 @@ The loop (`seal.steer.engine.Steerer`) publishes what happens as ``(event, field
                                                             the pool's slots still hold their end states
     candidate    round, slot, steps, ended_by, error, snapshot, verdict, t_start, t_end, t_verified
     commit       slot, round, steps, snapshot, ended_by, verdict
-    episode_end  success, steps, sim_error
+    episode_end  success, steps, sim_error, ended_by (goal_holds | policy_finished | step_limit | idle |
+                 sim_error; with policy_finished also the reasoning that said so)
 
 Subscribers turn that into files and displays: `seal.steer.trace.Trace` (the JSONL trace),
 `GridWriter` (a candidate contact sheet per round), `ProgressReporter` (one line of text for a
