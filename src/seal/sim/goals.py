@@ -23,6 +23,7 @@ PREDICATES = {
     "turnoff": "TurnOff",
     "grasped": "Grasped",  # ours: both finger pads touch the object
 }
+ARTICULATION = ("open", "close", "turnon", "turnoff")  # states of a hinge or slide, not of a free object
 ARITY = {"in": 2, "on": 2, "open": 1, "close": 1, "turnon": 1, "turnoff": 1, "grasped": 1}
 _DISPLAY_TO_KEY = {v.lower(): k for k, v in PREDICATES.items()}
 _ATOM_RE = re.compile(r"^\s*([A-Za-z_]+)\s*\(\s*([^()]*?)\s*\)\s*$")
