@@ -28,9 +28,9 @@ def _cmd_run(args) -> int:
         result = run_steered(spec, args.suite, args.task, args.init, Path(args.out), seed=args.seed,
                              max_steps=args.max_steps, video=not args.no_video, grids=not args.no_grids,
                              subscribers=(progress,))
-    keys = ("task", "method", "init_index", "success", "ended_by", "sim_error", "steps", "wall_s", "subplans", "goal_status",
-            "verifier_calls", "verifier_errors", "verifier_unavailable", "rounds", "fallbacks", "divergence",
-            "timing", "trace")
+    keys = ("task", "method", "init_index", "success", "ended_by", "sim_error", "steps", "wall_s", "subplans",
+            "goal_status", "verifier_calls", "verifier_errors", "verifier_unavailable", "rounds", "fallbacks",
+            "divergence", "timing", "trace")
     print(json.dumps({k: getattr(result, k) for k in keys}, indent=2))
     return 0
 

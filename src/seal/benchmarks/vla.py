@@ -226,7 +226,8 @@ def run(args) -> dict:
 
         if not args.ckpt:
             raise InvalidInput("--rollouts needs --ckpt: a random-init model has nothing to show")
-        out |= rollouts(str(path), tasks=args.tasks, n=int(args.rollouts), render=args.render or trained_render(str(path))["mode"],
+        render = args.render or trained_render(str(path))["mode"]  # the mode its demonstrations were recorded in
+        out |= rollouts(str(path), tasks=args.tasks, n=int(args.rollouts), render=render,
                         max_steps=getattr(args, "max_steps", None))
     return out
 
