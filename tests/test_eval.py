@@ -122,6 +122,7 @@ def test_tiny_run_end_to_end_and_resume(tmp_path):
         assert {r.method for r in rows} == {"base", "seal[k=2]"}
         assert all(r.status == "ok" and r.steps <= SHORT + 5 and Path(r.trace_path).exists() for r in rows)
         assert all(r.verifier_calls > 0 for r in rows if r.method.startswith("seal"))
+        assert all(r.ended_by == _events(r)[-1]["ended_by"] and r.ended_by for r in rows)
         assert set(store.methods()) == {m.config_hash for m in methods}
         # The alignment audit: every commit is audited against simulator truth, for base as for seal, and
         # an oracle-verified commit must be audited as achieved (same grounding, same committed state).
@@ -239,7 +240,8 @@ def test_store_migrates_an_older_schema(tmp_path):
     with ResultStore(db) as store:
         store.add(TrialRow(method="base", config_hash="h", suite="libero_10", task=0, trial=0, init_index=0, seed=0))
     con = sqlite3.connect(db)  # make it look like a v1 file (before policy_s and the verifier-error columns)
-    for column in ("policy_s", "verifier_errors", "verifier_unavailable", "subplans_audited", "subplans_aligned"):
+    for column in ("policy_s", "verifier_errors", "verifier_unavailable", "subplans_audited", "subplans_aligned",
+                   "ended_by"):
         con.execute(f"ALTER TABLE trials DROP COLUMN {column}")
     con.execute("UPDATE seal_meta SET value = '1' WHERE key = 'schema_version'")
     con.commit()
@@ -247,9 +249,9 @@ def test_store_migrates_an_older_schema(tmp_path):
     with ResultStore(db) as store:
         (row,) = store.rows()
     assert row.policy_s == 0.0 and row.verifier_errors == 0 and row.verifier_unavailable is False
-    assert (row.subplans_audited, row.subplans_aligned) == (0, 0)
+    assert (row.subplans_audited, row.subplans_aligned, row.ended_by) == (0, 0, "")
     con = sqlite3.connect(db)
-    assert con.execute("SELECT value FROM seal_meta WHERE key = 'schema_version'").fetchone()[0] == "4"
+    assert con.execute("SELECT value FROM seal_meta WHERE key = 'schema_version'").fetchone()[0] == "5"
     con.close()
 
 

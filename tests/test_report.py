@@ -56,7 +56,7 @@ def _write_trial_files(root: Path, spec: MethodSpec, suite: str, task: int, tria
                      "cached": True}},
         {"event": "commit", "t": 1.2, "slot": 1, "round": 0, "steps": 45, "ended_by": "think",
          "verdict": {"success": True, "rationale": "Grasped(soup) is true"}},
-        {"event": "episode_end", "t": 1.3, "success": False, "steps": 45, "sim_error": False},
+        {"event": "episode_end", "t": 1.3, "success": False, "steps": 45, "sim_error": False, "ended_by": "idle"},
     ]
     (d / "trace.jsonl").write_text("".join(json.dumps(e) + "\n" for e in events))
     grid = np.zeros((60, 120, 3), np.uint8)
@@ -67,6 +67,14 @@ def _write_trial_files(root: Path, spec: MethodSpec, suite: str, task: int, tria
         for i in range(5):
             video.append_data(np.full((64, 64, 3), 40 * i, np.uint8))
     return str(d / "trace.jsonl"), str(d / "episode.mp4")
+
+
+def _ending(suite: str, success: bool) -> str:
+    """Stored ``ended_by``: "" (a row from before the column) for LIBERO-10 failures, whose one trace
+    file then answers for trial 5 and nothing for the others."""
+    if success:
+        return "goal_holds"
+    return "policy_finished" if suite == "composition" else ""
 
 
 @pytest.fixture(scope="module")
@@ -89,6 +97,7 @@ def store_path(tmp_path_factory) -> Path:
                                        verifier_calls=3 * (spec.method == "seal"), input_tokens=1000, output_tokens=50,
                                        cost_usd=0.01, subplans=["pick up the soup", "place it in the basket"],
                                        subplans_audited=2, subplans_aligned=1 + (spec.method == "seal"),
+                                       ended_by=_ending(suite, t < count),
                                        trace_path=trace, video_path=video, worker="w1"))
         # A seal trial base never ran: must not enter any paired comparison.
         store.add(TrialRow(method=SEAL.label, config_hash=SEAL.config_hash, suite="libero_10", task=0, trial=N,
@@ -197,6 +206,13 @@ def test_csv_layout(report):
     assert float(runtime["base"]["wall_s_per_executed_step"]) == pytest.approx(0.2)  # 20 s / 100 steps
     assert float(runtime["seal[k=2]"]["verifier_calls_per_trial"]) == pytest.approx(60 / 21, abs=0.01)
     align = {r["method"]: r for r in csv.DictReader(by_name["alignment.csv"].read_text().splitlines())}
+    endings = {(r["method"], r["ended_by"]): (int(r["episodes"]), int(r["failed"]))
+               for r in csv.DictReader(by_name["endings.csv"].read_text().splitlines())}
+    # base: 15 successes; of the 5 failures of libero_10 task 0, trial 5's trace says idle and 4 say
+    # nothing; composition's 10 failures were stored as policy_finished. The crashed SEAL2 row is "error".
+    assert {k[1]: v for k, v in endings.items() if k[0] == "base"} == {
+        "goal_holds": (15, 0), "idle": (1, 1), "not recorded": (4, 4), "policy_finished": (10, 10)}
+    assert endings[("seal[k=2]", "error")] == (1, 1)
     assert float(align["base"]["alignment_rate"]) == 0.5 and float(align["seal[k=2]"]["alignment_rate"]) == 1.0
     assert align["base"]["subplans_audited"] == str(2 * N * 3)  # 2 per trial, 3 tasks; totals, not a mean of rates
     errors = list(csv.DictReader(by_name["errors.csv"].read_text().splitlines()))

@@ -18,8 +18,8 @@ from pathlib import Path
 
 from seal.errors import InvalidInput
 
-SCHEMA_VERSION = 4  # v2 added trials.policy_s, v3 trials.verifier_errors and verifier_unavailable,
-# v4 trials.subplans_audited and subplans_aligned
+SCHEMA_VERSION = 5  # v2 added trials.policy_s, v3 trials.verifier_errors and verifier_unavailable,
+# v4 trials.subplans_audited and subplans_aligned, v5 trials.ended_by
 MAGIC = "seal-results"
 
 _SCHEMA = """
@@ -55,6 +55,7 @@ CREATE TABLE trials (
     verifier_unavailable INTEGER NOT NULL DEFAULT 0,
     subplans_audited INTEGER NOT NULL DEFAULT 0,
     subplans_aligned INTEGER NOT NULL DEFAULT 0,
+    ended_by TEXT NOT NULL DEFAULT '',
     subplans_json TEXT NOT NULL,
     goal_status_json TEXT NOT NULL,
     trace_path TEXT NOT NULL,
@@ -97,6 +98,7 @@ class TrialRow:
     verifier_unavailable: bool = False  # in most rounds no verification got an answer: mostly unverified
     subplans_audited: int = 0  # committed sub-plans the oracle could ground (the alignment audit)
     subplans_aligned: int = 0  # of those, the ones whose executed chunks achieved the sub-plan
+    ended_by: str = ""  # why the episode stopped (SteerResult.ended_by); "" in rows stored before v5
     subplans: list = field(default_factory=list)
     goal_status: dict = field(default_factory=dict)
     trace_path: str = ""
@@ -177,6 +179,8 @@ class ResultStore:
             if version < 4:  # older trials were not audited: 0 of 0, shown as no figure
                 self._db.execute("ALTER TABLE trials ADD COLUMN subplans_audited INTEGER NOT NULL DEFAULT 0")
                 self._db.execute("ALTER TABLE trials ADD COLUMN subplans_aligned INTEGER NOT NULL DEFAULT 0")
+            if version < 5:  # older rows keep "": their traces may still say (the report looks there)
+                self._db.execute("ALTER TABLE trials ADD COLUMN ended_by TEXT NOT NULL DEFAULT ''")
             self._db.execute("UPDATE seal_meta SET value = ? WHERE key = 'schema_version'", (str(SCHEMA_VERSION),))
 
     def close(self) -> None:

@@ -55,6 +55,7 @@ def write_report(db: str | Path, out_dir: str | Path, *, runs_dir: str | Path | 
     paired = tables.paired_rows(data)
     runtime = tables.runtime_rows(data)
     alignment = tables.alignment_rows(data)
+    endings = tables.ending_rows(data)
 
     csvs = []
     for st in success:
@@ -63,6 +64,7 @@ def write_report(db: str | Path, out_dir: str | Path, *, runs_dir: str | Path | 
     csvs.append(_write(out / "csv" / "paired_differences.csv", tables.paired_csv(paired)))
     csvs.append(_write(out / "csv" / "runtime.csv", tables.runtime_csv(runtime)))
     csvs.append(_write(out / "csv" / "alignment.csv", tables.alignment_csv(alignment)))
+    csvs.append(_write(out / "csv" / "endings.csv", tables.ending_csv(endings)))
     csvs.append(_write(out / "csv" / "errors.csv", tables.error_csv(data)))
     csvs.append(_write(out / "csv" / "verifier_errors.csv", tables.verifier_csv(data)))
 
@@ -72,6 +74,7 @@ def write_report(db: str | Path, out_dir: str | Path, *, runs_dir: str | Path | 
     sections = [("Success", [tables.success_display(st) for st in success]),
                 ("Paired differences", [tables.paired_display(paired)]),
                 ("Alignment", [tables.alignment_display(alignment)]),
+                ("Endings", [tables.ending_display(endings)]),
                 ("Runtime", [tables.runtime_display(runtime)]),
                 ("Errors", [tables.error_display(data), tables.verifier_display(data)])]
     md = _write(out / "report.md", _markdown(data, sections, plot_paths, out))

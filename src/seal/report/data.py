@@ -9,6 +9,7 @@ broken run for a bad method.
 from __future__ import annotations
 
 import csv
+import json
 import math
 import re
 from collections import defaultdict
@@ -156,6 +157,20 @@ class ReportData:
                 f"{mostly} trial(s) had the verifier unavailable in most of their rounds (no answer at all): their results "
                 f"say little about the verified method. See the table 'Verifier errors'.")
 
+    def ended_by(self, row: TrialRow) -> str:
+        """Why a trial's episode stopped: the stored value, else the trace's ``episode_end`` event
+        (traces carried it before the results store did), else "not recorded"."""
+        if row.status == "error":
+            return "error"
+        if row.ended_by:
+            return row.ended_by
+        trace = self.resolve(row.trace_path)
+        if trace is not None:
+            end = _last_event(trace)
+            if end.get("event") == "episode_end" and end.get("ended_by"):
+                return str(end["ended_by"])
+        return "not recorded"
+
     # ---- files -----------------------------------------------------------------------------
     def resolve(self, stored: str) -> Path | None:
         """A trial file as stored, or the same file under ``runs_dir`` if the run directory was
@@ -172,6 +187,18 @@ class ReportData:
                 if moved.exists():
                     return moved
         return None
+
+
+def _last_event(trace: Path) -> dict:
+    """The last JSON line of a trace, read from the file's end (traces grow to megabytes)."""
+    with open(trace, "rb") as f:
+        f.seek(0, 2)
+        f.seek(max(0, f.tell() - 16384))
+        lines = f.read().splitlines()
+    try:
+        return json.loads(lines[-1]) if lines else {}
+    except ValueError:  # a trace cut off mid-line by a killed run
+        return {}
 
 
 def _method_list(rows: list[TrialRow], registered: dict[str, tuple[str, dict]]) -> list[MethodInfo]:

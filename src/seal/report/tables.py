@@ -13,7 +13,7 @@ import math
 from collections import Counter
 from dataclasses import dataclass, field
 
-from seal.report.data import Cell, MethodInfo, ReportData
+from seal.report.data import Cell, MethodInfo, ReportData, succeeded
 from seal.report.paper import PAPER_NAMES, TABLES, PaperResults, paper_method_for
 from seal.report.stats import PairedDifference, paired_difference, wilson
 
@@ -342,6 +342,61 @@ def alignment_csv(rows: list[AlignmentRow]) -> str:
 
 def _fmt(x: float, digits: int) -> str:
     return "–" if math.isnan(x) else f"{x:.{digits}f}"
+
+
+# ---- how episodes ended ----------------------------------------------------------------------------
+ENDINGS = ("goal_holds", "policy_finished", "step_limit", "idle", "sim_error", "error", "not recorded")
+_ENDING_NOTES = {
+    "goal_holds": "the task's goal held after a commit",
+    "policy_finished": "the policy wrote that the task is done (goal not holding when it is a failure)",
+    "step_limit": "the episode used its step budget",
+    "idle": "the policy kept switching to reasoning without acting",
+    "sim_error": "every candidate of a sub-plan broke the simulator",
+    "error": "the trial crashed (status 'error')",
+    "not recorded": "rows stored before the results schema kept it, with no trace that says",
+}
+
+
+@dataclass
+class EndingRow:
+    """How one method configuration's episodes stopped: counts per ``ended_by`` value."""
+
+    method: MethodInfo
+    trials: int
+    counts: dict  # ending -> (all episodes, failed episodes)
+
+
+def ending_rows(data: ReportData) -> list[EndingRow]:
+    out = []
+    for m in data.methods:
+        rows = [r for r in data.rows if r.config_hash == m.config_hash]
+        counts = {e: [0, 0] for e in ENDINGS}
+        for r in rows:
+            end = data.ended_by(r)
+            counts[end][0] += 1
+            counts[end][1] += not succeeded(r)
+        out.append(EndingRow(m, len(rows), {e: tuple(v) for e, v in counts.items()}))
+    return out
+
+
+def ending_display(rows: list[EndingRow]) -> Table:
+    used = [e for e in ENDINGS if any(r.counts[e][0] for r in rows)]
+    headers = ["Method", "trials"] + used
+    body = [[r.method.label, str(r.trials)] + [_ending_cell(*r.counts[e]) for e in used] for r in rows]
+    notes = ["Each cell: episodes that ended this way (of them, failures in brackets). A failure that ended "
+             "before its step budget is one the policy gave up on: SEAL verifies actions, not the policy's "
+             "own judgement of progress."] + [f"{e}: {_ENDING_NOTES[e]}." for e in used]
+    return Table("How episodes ended", headers, body, set(), notes, left=1)
+
+
+def _ending_cell(n: int, failed: int) -> str:
+    return f"{n} ({failed})" if n else "0"
+
+
+def ending_csv(rows: list[EndingRow]) -> str:
+    return to_csv(["method", "config_hash", "trials", "ended_by", "episodes", "failed"],
+                  [[r.method.label, r.method.config_hash, r.trials, e, *r.counts[e]] for r in rows for e in ENDINGS
+                   if r.counts[e][0]])
 
 
 # ---- error trials ------------------------------------------------------------------------------
