@@ -65,6 +65,28 @@ def test_heldout_splits_share_no_task_or_init_state_with_training(data):
         split(arrays, VerifierTrainConfig(holdout_tasks=("libero_90/3",)))
 
 
+def test_cases_from_demonstrations_are_training_data_only(tmp_path):
+    from _verifier_cases import make_row
+
+    rows = []
+    for task in ("libero_10/0", "libero_10/1"):
+        for i in range(40):
+            row = make_row(i, task=task, init_index=i % 8)
+            if i >= 20:  # half of each task replayed from demonstrations
+                row.update(init_source=ds.DEMO_SOURCE, case_id=row["case_id"].replace("fresh-train", "demo"))
+            rows.append(row)
+    ds.write_shard(tmp_path, ds.shard_name("libero_10", 0, 0), rows)
+    ds.write_info(tmp_path, {"collection": {"settings": {"synthetic": True}}})
+    arrays, _ = load_arrays(tmp_path, 32)
+    parts = split(arrays, VerifierTrainConfig(holdout_tasks=("libero_10/1",), holdout_inits=0.5))
+    held = np.concatenate([parts["heldout_inits"], parts["heldout_tasks"]])
+    assert len(parts["heldout_inits"]) > 0 and len(parts["heldout_tasks"]) == 20
+    assert all(arrays.source[i] != ds.DEMO_SOURCE for i in held)
+    train = {arrays.task[i] for i in parts["train"]}
+    assert train == {"libero_10/0"}  # the held-out task's demonstration cases are left out altogether
+    assert sum(arrays.source[i] == ds.DEMO_SOURCE for i in parts["train"]) == 20
+
+
 def test_resuming_gives_the_weights_of_an_uninterrupted_run(data, tmp_path):
     cfg = VerifierTrainConfig(steps=6, batch_size=8, image_size=32, holdout_inits=0.25)
     train_verifier(data, tmp_path / "straight", cfg)

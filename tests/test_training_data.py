@@ -5,6 +5,7 @@ import pytest
 
 from seal.datasets import Episode, LeRobotWriter, open_dataset
 from seal.demos import record_demos, start_seed
+from seal.errors import InvalidInput
 from seal.sim.world import LiberoWorld
 
 
@@ -66,13 +67,43 @@ def test_small_datasets_store_frames_losslessly(tmp_path):
             pass
 
 
-def test_demos_record_sampled_starts_at_64_px(tmp_path):
-    summary = record_demos("libero_10", tmp_path, episodes_per_task=1, tasks=[5], render_mode="fast",
-                           image_size=64)
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    root = tmp_path_factory.mktemp("demos")
+    summary = record_demos("libero_10", root, episodes_per_task=1, tasks=[5], render_mode="fast", image_size=64)
     assert summary.recorded == 1
-    ds = open_dataset(tmp_path)
+    return root
+
+
+def test_demos_record_sampled_starts_at_64_px(recorded):
+    ds = open_dataset(recorded)
     meta = ds.episode_meta(0)["meta"]
     assert meta["start"] == "sampled" and meta["start_seed"] >= start_seed("libero_10/5", 0)
     assert meta["image_size"] == 64 and ds.image_size == 64
     video = ds.video(0)
     assert video.shape[1:] == (64, 64, 3) and video.std() > 10  # a scene, not a blank frame
+
+
+def test_demonstrations_replay_into_labelled_verification_cases(recorded, tmp_path):
+    """`seal verify from-demos`: the replay reaches the recorded success, every sub-plan is judged
+    along its way (not yet achieved half-way, achieved just after its end), and a re-run replays
+    nothing."""
+    from seal.verify import dataset as vds
+    from seal.verify.demo_cases import DemoCaseOptions, from_demos
+
+    meta = open_dataset(recorded).episode_meta(0)
+    opts = DemoCaseOptions(fractions=(0.5, 1.0), after=5)
+    summary = from_demos(recorded, tmp_path, opts)
+    assert summary["replay_failed"] == [] and summary["replayed"] == 1 and summary["cases"] > 0
+    rows = vds.read_cases(tmp_path).to_pylist()
+    assert {r["init_source"] for r in rows} == {"demo"} and {r["init_seed"] for r in rows} == {meta["meta"]["start_seed"]}
+    for i, text in enumerate(meta["subplans"]):
+        mine = sorted((r for r in rows if r["subplan_index"] == i), key=lambda r: r["steps"])
+        assert [r["subplan"] for r in mine] == [text] * 3, text
+        assert not mine[0]["label"] and mine[-1]["label"], (text, [r["label"] for r in mine])
+    first = vds.decode_png(rows[0]["final_agent"])
+    assert first.shape == (224, 224, 3) and first.std() > 10
+    again = from_demos(recorded, tmp_path, opts)
+    assert (again["replayed"], again["already_done"]) == (0, 1)
+    with pytest.raises(InvalidInput, match="fractions"):
+        from_demos(recorded, tmp_path, DemoCaseOptions(fractions=(0.5,), after=5))

@@ -152,6 +152,31 @@ def _cmd_verify(args) -> int:
     return 0
 
 
+def _cmd_verify_from_demos(args) -> int:
+    from seal.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from seal.verify.demo_cases import DemoCaseOptions, from_demos
+
+    try:
+        fractions = tuple(float(f) for f in args.fractions.split(","))
+    except ValueError:
+        raise InvalidInput(f"--fractions must be comma-separated numbers in (0, 1], got {args.fractions!r}") from None
+    tasks = None if args.tasks is None else [int(t) for t in args.tasks.split(",")]
+    opts = DemoCaseOptions(fractions=fractions, after=args.after, episodes_per_task=args.episodes_per_task)
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn()) as bar:
+        job = bar.add_task("replaying demonstrations", total=None)
+
+        def progress(done, total, text):
+            bar.update(job, completed=done, total=total, description=text)
+
+        summary = from_demos(Path(args.dataset), Path(args.out), opts, tasks=tasks, progress=progress)
+    if summary["replay_failed"]:
+        print(f"seal: warning: {len(summary['replay_failed'])} replay(s) did not end in success and gave no cases "
+              f"(episodes {summary['replay_failed'][:10]})", file=sys.stderr)
+    print(json.dumps(summary))
+    return 0
+
+
 def _cmd_train_verifier(args) -> int:
 
     from seal.train.verifier import VerifierTrainConfig, train_verifier
@@ -524,7 +549,8 @@ def _add_train(sub) -> None:
 
 
 def _add_verify(sub) -> None:
-    verify = sub.add_parser("verify", help="verifier data: `collect` verification cases from SEAL rounds")
+    verify = sub.add_parser("verify", help="verifier data: `collect` verification cases from SEAL rounds, "
+                            "or `from-demos` from recorded demonstrations")
     verify_sub = verify.add_subparsers(dest="verify_command", required=True)
     col = verify_sub.add_parser("collect", help="every candidate SEAL sends to the verifier, with its three views "
                                 "and the oracle's label, as parquet (resumable; docs/verifier.md)")
@@ -555,6 +581,17 @@ def _add_verify(sub) -> None:
             group.add_argument(flag, type=kind, default=None, help=help_text)
     col.set_defaults(func=_cmd_verify, verifier=None, model=None, false_positive=None, false_negative=None,
                      value_ckpt=None, value_goal=None)
+    dem = verify_sub.add_parser("from-demos", help="cases from recorded demonstrations: replay each, stop along every "
+                                "sub-plan (the hard negatives: almost there), label by the oracle (training data only)")
+    dem.add_argument("--dataset", required=True, help="a `seal demos record` dataset (sampled starts)")
+    dem.add_argument("--tasks", default=None, help="comma-separated task ids (default: every task in the dataset)")
+    dem.add_argument("--episodes-per-task", type=int, default=None, help="the first N episodes of each task")
+    dem.add_argument("--fractions", default="0.3,0.6,0.8,0.9,1.0",
+                     help="end states judged per sub-plan, as fractions of the way from its start to its end")
+    dem.add_argument("--after", type=int, default=10, help="one more end state this many frames past the "
+                     "sub-plan's end (0: none)")
+    dem.add_argument("--out", required=True, help="collection directory (re-run with the same one to continue)")
+    dem.set_defaults(func=_cmd_verify_from_demos)
 
 
 def _add_suites(sub) -> None:

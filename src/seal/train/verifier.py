@@ -85,6 +85,7 @@ class CaseArrays:
     task: list[str]
     kind: list[str]
     init_key: list[str]  # task:source:index
+    source: list[str]  # init_source: cases from demonstrations ("demo") are training data only
 
     def __len__(self) -> int:
         return len(self.label)
@@ -131,7 +132,7 @@ def _load_one(data: Path, size: int, cache_dir: Path | None, progress) -> tuple[
     init_key = [f"{t}:{s}:{i}" for t, s, i in zip(meta["task"], meta["init_source"], meta["init_index"])]
     return CaseArrays(first, final, wrist, list(meta["subplan"]), context,
                       np.asarray(meta["label"], dtype=np.float32), list(meta["task"]), list(meta["kind"]),
-                      init_key), list(meta["case_id"])
+                      init_key, list(meta["init_source"])), list(meta["case_id"])
 
 
 def load_arrays(data: Path | list[Path], size: int, cache_dir: Path | None = None,
@@ -149,11 +150,13 @@ def load_arrays(data: Path | list[Path], size: int, cache_dir: Path | None = Non
     cat = lambda name: np.concatenate([getattr(a, name) for a in arrays])  # noqa: E731
     join = lambda name: [x for a in arrays for x in getattr(a, name)]  # noqa: E731
     return CaseArrays(cat("first"), cat("final"), cat("wrist"), join("subplan"), join("context"), cat("label"),
-                      join("task"), join("kind"), join("init_key")), fingerprint
+                      join("task"), join("kind"), join("init_key"), join("source")), fingerprint
 
 
 def split(arrays: CaseArrays, cfg: VerifierTrainConfig) -> dict[str, np.ndarray]:
-    """Indices of train / heldout_inits / heldout_tasks."""
+    """Indices of train / heldout_inits / heldout_tasks. Cases replayed from demonstrations
+    (`seal verify from-demos`) are training data only: they never enter a held-out split (their
+    starts and actions are not SEAL's), and those of held-out tasks are left out altogether."""
     tasks = sorted(set(arrays.task))
     unknown = [t for t in cfg.holdout_tasks if t not in tasks]
     if unknown:
@@ -164,8 +167,10 @@ def split(arrays: CaseArrays, cfg: VerifierTrainConfig) -> dict[str, np.ndarray]
         h = int.from_bytes(hashlib.sha1(f"{cfg.seed}:{key}".encode()).digest()[:8], "big") / 2**64
         return h < cfg.holdout_inits
 
-    held_init_mask = np.array([held_init(k) for k in arrays.init_key]) & ~held_task
+    demo = np.array([s == ds.DEMO_SOURCE for s in arrays.source])
+    held_init_mask = np.array([held_init(k) for k in arrays.init_key]) & ~held_task & ~demo
     train = ~held_task & ~held_init_mask
+    held_task &= ~demo
     if not train.any():
         raise InvalidInput("nothing left to train on after the held-out splits")
     return {"train": np.flatnonzero(train), "heldout_inits": np.flatnonzero(held_init_mask),

@@ -34,6 +34,7 @@ FORMAT = "seal-verification-cases"
 VERSION = 1
 IMAGE_SIZE = 224
 IMAGE_COLUMNS = ("first_agent", "final_agent", "final_wrist")
+DEMO_SOURCE = "demo"  # init_source of cases replayed from demonstrations (`seal.verify.demo_cases`)
 KINDS = ("pick", "place", "open", "close", "turn", "other")  # turn: turn on / turn off
 
 # column -> (arrow type name, meaning); the order is the file's column order.
@@ -42,7 +43,8 @@ COLUMNS: dict[str, tuple[str, str]] = {
     "suite": ("string", "task suite, e.g. libero_10"),
     "task_id": ("int32", "task id within the suite"),
     "task": ("string", "suite/task_id, e.g. libero_10/0"),
-    "init_source": ("string", "official (LIBERO's evaluation starts) | fresh-train | fresh-heldout"),
+    "init_source": ("string", "official (LIBERO's evaluation starts) | fresh-train | fresh-heldout | "
+                              "demo (replayed from a recorded demonstration's sampled start)"),
     "init_index": ("int32", "index of the init state within its source"),
     "init_seed": ("int64", "placement-sampler seed that drew a fresh init state (-1: official)"),
     "episode": ("int32", "episode number of this task in the collection"),

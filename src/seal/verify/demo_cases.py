@@ -1,0 +1,222 @@
+"""Verification cases from recorded demonstrations: replay each one, stop along every sub-plan,
+and let the oracle label what the three views show.
+
+Why: SEAL rounds (`seal.collect`) are the faithful source of cases but a slow one (a round of K
+rollouts yields at most K cases, and most candidates of a good policy succeed). A demonstration
+already walks through every sub-plan, and the states *inside* a sub-plan are the hard negatives
+a verifier must refuse: the can lifted but still above the basket, the drawer half shut. Replaying
+a demonstration costs one rollout and gives several cases per sub-plan.
+
+How a demonstration becomes cases (``seal verify from-demos``):
+
+- The dataset must come from `seal demos record` with sampled starts: each episode's meta holds
+  its start seed, the sub-plans and the frame at which each sub-plan's goal first held
+  (``critical_frames``). The episode is replayed in the render mode it was recorded in, from the
+  same start, with the recorded actions; a replay that does not end in success (the actions are
+  stored as float32) is skipped and counted.
+- Sub-plan i runs from the frame where sub-plan i-1 was achieved (0 for the first) to its own
+  critical frame e. Its "before" view is the front camera at the start frame; the candidate end
+  states are the frames at ``fractions`` of the way to e (1.0 is e itself) and ``after`` frames
+  past e (the state a candidate that kept going would reach).
+- Each end state is labelled by the oracle exactly as in `seal verify collect`: the sub-plan is
+  grounded to goal atoms and checked in that state. The label is the simulator's, not the
+  fraction's: a can dropped in the basket early is a success wherever it is caught.
+
+Rows have the columns of `seal.verify.dataset` with ``init_source="demo"``, ``init_index`` the
+dataset's episode index, ``init_seed`` its start seed, ``policy="scripted"``, ``knobs="demo"``,
+``round=0``, ``candidate`` the end frame's position in the list, ``steps`` the frames since the
+sub-plan began and ``ended_by="demo"``. `seal train verifier` uses such cases for training only:
+they are never part of a held-out split (their starts and actions are not SEAL's).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from seal.errors import InvalidInput
+from seal.verify import dataset as ds
+from seal.verify.base import VerifyRequest
+from seal.verify.oracle import OracleVerifier
+
+SOURCE = ds.DEMO_SOURCE
+
+
+@dataclass(frozen=True)
+class DemoCaseOptions:
+    fractions: tuple[float, ...] = (0.3, 0.6, 0.8, 0.9, 1.0)  # of the way from a sub-plan's start to its end
+    after: int = 10  # one more end state this many frames past the sub-plan's end (0: none)
+    episodes_per_task: int | None = None  # the first N episodes of each task (default: all)
+
+    def settings(self) -> dict:
+        return {"source": SOURCE, "fractions": list(self.fractions), "after": self.after}
+
+    def check(self) -> None:
+        if not self.fractions or any(not 0.0 < f <= 1.0 for f in self.fractions):
+            raise InvalidInput(f"--fractions must be numbers in (0, 1], got {list(self.fractions)}")
+        if self.after < 0:
+            raise InvalidInput(f"--after must be >= 0 frames, got {self.after}")
+
+
+def end_frames(start: int, end: int, length: int, opts: DemoCaseOptions) -> list[int]:
+    """The frames judged as candidate end states of a sub-plan that ran from ``start`` to ``end``
+    (distinct, in order; frame ``length`` is the state after the last recorded action)."""
+    frames = [start + max(1, round(f * (end - start))) for f in opts.fractions]
+    if opts.after:
+        frames.append(end + opts.after)
+    out: list[int] = []
+    for f in frames:
+        f = min(f, length)
+        if f > start and f not in out:
+            out.append(f)
+    return out
+
+
+def _segments(meta: dict) -> list[tuple[str, int, int]]:
+    """(sub-plan, start frame, end frame) of one recorded episode."""
+    subplans, critical = meta.get("subplans"), meta.get("critical_frames")
+    if not subplans or critical is None or len(subplans) != len(critical):
+        raise InvalidInput("episode meta lacks matching 'subplans' and 'critical_frames' "
+                           "(record the dataset with `seal demos record`)")
+    out, start = [], 0
+    for text, end in zip(subplans, critical):
+        if end is None or end < 0:  # this sub-goal never held: the rest cannot be placed in time
+            break
+        if end > start:
+            out.append((text, start, int(end)))
+        start = max(start, int(end))
+    return out
+
+
+def replay_cases(world, meta: dict, actions: np.ndarray, base: dict, opts: DemoCaseOptions) -> tuple[list[dict], bool]:
+    """Replay one episode in ``world`` and return (case rows, whether the replay succeeded)."""
+    from seal.sim.world import AGENT_CAMERA  # noqa: F401  (world import side effects: MuJoCo GL)
+
+    oracle = OracleVerifier()
+    plans = tuple(meta["subplans"])
+    segments = _segments(meta)
+    length = len(actions)
+    world.reset_sampled(int(meta["meta"]["start_seed"]), max_draws=1)
+    objects = None
+    wanted: dict[int, list[tuple[int, str, int, int]]] = {}  # frame -> [(segment index, text, start, slot)]
+    starts: set[int] = set()
+    for i, (text, start, end) in enumerate(segments):
+        starts.add(start)
+        for slot, f in enumerate(end_frames(start, end, length, opts)):
+            wanted.setdefault(f, []).append((i, text, start, slot))
+    first_views: dict[int, np.ndarray] = {}
+    rows: list[dict] = []
+    for t in range(length + 1):
+        if t in starts or t in wanted:
+            obs = world.observe(images=True)
+            if t in starts:
+                first_views[t] = obs.agent
+            if objects is None:
+                scene = world.scene_state()
+                objects = sorted(set(scene.bodies) | set(scene.sites))
+            for i, text, start, slot in wanted.get(t, ()):
+                req = VerifyRequest(subplan=text, instruction=base["instruction"], plans=plans, index=i,
+                                    first_agent=first_views[start], final_agent=obs.agent, final_wrist=obs.wrist,
+                                    task=base["task"])
+                atoms = oracle.atoms_needed(req, objects)
+                req.scene = world.scene_state(atoms)
+                verdict = oracle.judge(req)
+                if verdict.success is None:
+                    continue
+                atoms = list(verdict.extra.get("atoms", []))
+                rows.append({
+                    **base, "case_id": f"{base['task']}:{SOURCE}:{base['init_index']}:s{i + 1}:f{t}",
+                    "plans": list(plans), "subplan": text, "subplan_index": i, "subplan_number": i + 1,
+                    "kind": ds.subplan_kind(text, atoms), "round": 0, "candidate": slot, "steps": t - start,
+                    "ended_by": SOURCE, "label": bool(verdict.success), "atoms": atoms,
+                    "atom_values": [bool(req.scene.facts[a]) for a in atoms], "objects": objects,
+                    **{c: ds.encode_png(img) for c, img in zip(ds.IMAGE_COLUMNS, (req.first_agent, obs.agent, obs.wrist))},
+                })
+        if t < length:
+            world.step(actions[t])
+    return rows, bool(world.success())
+
+
+def _task_of(meta: dict):
+    from seal.sim.suites import get_task
+
+    m = meta.get("meta") or {}
+    if "suite" not in m or "task_id" not in m:
+        raise InvalidInput("episode meta lacks suite/task_id (record the dataset with `seal demos record`)")
+    return get_task(m["suite"], int(m["task_id"]))
+
+
+def from_demos(dataset: Path, out: Path, opts: DemoCaseOptions, *, tasks: list[int] | None = None,
+               progress: Callable | None = None) -> dict:
+    """Write cases from the recorded episodes of ``dataset`` into ``out`` (resumable: an episode whose
+    shard exists is not replayed again). ``tasks``: only these task ids."""
+    from seal.datasets.lerobot import LeRobotReader
+    from seal.sim.world import LiberoWorld
+
+    opts.check()
+    reader = LeRobotReader(Path(dataset))
+    out = Path(out)
+    settings = {**opts.settings(), "dataset": str(Path(dataset).resolve())}
+    if (out / "info.json").is_file():
+        old = ds.read_info(out).get("collection", {}).get("settings", {})
+        changed = sorted(k for k in ("source", "fractions", "after") if old.get(k) != settings[k])
+        if changed:
+            raise InvalidInput(f"{out} holds cases made with other settings ({', '.join(changed)}); "
+                               "use another --out, or the same settings to continue")
+    done = {p.name for p in ds.shard_paths(out)}
+    plan = []
+    per_task: dict[str, int] = {}
+    for e in range(reader.num_episodes):
+        meta = reader.episode_meta(e)
+        m = meta.get("meta") or {}
+        if m.get("start") != "sampled" or "start_seed" not in m:
+            raise InvalidInput(f"episode {e} of {dataset} did not start from a sampled state "
+                               f"(start {m.get('start')!r}); cases come only from sampled starts, so "
+                               "no evaluation init state enters training")
+        if tasks is not None and int(m["task_id"]) not in tasks:
+            continue
+        key = f"{m['suite']}/{m['task_id']}"
+        per_task[key] = per_task.get(key, 0) + 1
+        if opts.episodes_per_task is not None and per_task[key] > opts.episodes_per_task:
+            continue
+        plan.append((e, meta))
+    summary = {"out": str(out.resolve()), "episodes": len(plan), "replayed": 0, "already_done": 0,
+               "replay_failed": [], "cases": 0, "success": 0, "failure": 0}
+    world, world_key = None, None
+    try:
+        for n, (e, meta) in enumerate(plan):
+            task = _task_of(meta)
+            shard = ds.shard_name(task.suite, task.task_id, e)
+            if shard in done:
+                summary["already_done"] += 1
+                continue
+            mode = (meta.get("meta") or {}).get("render_mode", "stock")
+            if (task.key, mode) != world_key:
+                if world is not None:
+                    world.close()
+                world, world_key = LiberoWorld(task, render_mode=mode), (task.key, mode)
+            actions = np.asarray(reader.frames(e).column("action").to_pylist(), dtype=np.float64)
+            base = {"suite": task.suite, "task_id": task.task_id, "task": task.key, "init_source": SOURCE,
+                    "init_index": e, "init_seed": int(meta["meta"]["start_seed"]), "episode": e, "seed": -1,
+                    "policy": "scripted", "knobs": SOURCE, "instruction": task.instruction}
+            rows, ok = replay_cases(world, meta, actions, base, opts)
+            if not ok:  # the replay drifted from the recording: its labels would still be true, but
+                rows = []  # its states are not the demonstration's; keep the data set honest
+                summary["replay_failed"].append(e)
+            ds.write_shard(out, shard, rows)
+            summary["replayed"] += 1
+            summary["cases"] += len(rows)
+            summary["success"] += sum(r["label"] for r in rows)
+            summary["failure"] += sum(not r["label"] for r in rows)
+            ds.write_info(out, {"collection": {"settings": settings, "replay_failed": summary["replay_failed"]}})
+            if progress is not None:
+                progress(n + 1, len(plan), f"episode {e} ({task.key}): {len(rows)} cases")
+    finally:
+        if world is not None:
+            world.close()
+    if not (out / "info.json").is_file():
+        ds.write_info(out, {"collection": {"settings": settings, "replay_failed": []}})
+    return summary
