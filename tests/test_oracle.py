@@ -71,3 +71,13 @@ def test_it_refers_to_the_latest_pick_before_the_subplan():
 def test_ungroundable_text_is_unknown_not_a_guess(text):
     g = ground(text, (), SCENE0)
     assert g.atoms == () and g.reason
+
+
+@pytest.mark.parametrize("text", ["place it in the pick up the tomato sauce", "put the tomato sauce on the tomato sauce",
+                                  "place the alphabet soup in the place the soup in the basket"])
+def test_garbled_places_are_unknown_not_an_atom_that_can_never_hold(text):
+    # A learned policy's reasoning can run two sub-plans together; before, the first became
+    # On(tomato_sauce_1, tomato_sauce_1) and counted as a misaligned action in the audit.
+    plans = ("pick up the tomato sauce", text)
+    g = ground(text, plans, SCENE0, 1)
+    assert g.atoms == () and g.reason, g

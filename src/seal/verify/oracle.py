@@ -9,8 +9,9 @@ Grounding is by lexicon. A sub-plan is a verb phrase over LIBERO objects:
     turn on the cooktop                      -> TurnOn(flat_stove_1)
 
 "it" refers to the object of the latest pick before this sub-plan in the plan list. Text that
-cannot be grounded (unknown verb, no matching object in the scene, an ambiguous reference) gives
-an explicit ``unknown`` verdict, never a guess.
+cannot be grounded (unknown verb, no matching object in the scene, an ambiguous reference, a
+place whose destination is another action or the object itself, as garbled reasoning writes)
+gives an explicit ``unknown`` verdict, never a guess.
 """
 
 from __future__ import annotations
@@ -95,9 +96,13 @@ def ground(subplan: str, plans: tuple[str, ...], names: list[str], index: int | 
         obj = _last_picked(subplan, plans, objects, index) if what in ("it", "them", "that", "") else _resolve(what, objects)
         if obj is None:
             return Grounding((), f"cannot tell what {what or 'it'!r} refers to")
+        if _PICK.match(where) or _PLACE.match(where):  # "place it in the pick up the sauce": two sub-plans run together
+            return Grounding((), f"a second action where the destination should be: {where!r}")
         target = _destination(prep, where, names, objects)
         if target is None:
             return Grounding((), f"no place called {where!r}")
+        if target == obj or target.startswith(obj + "_"):
+            return Grounding((), f"{subplan!r} puts {obj} on or in itself")
         return Grounding((GoalAtom(_predicate(prep, target), (obj, target)),))
     return Grounding((), f"unknown action in {subplan!r}")
 
