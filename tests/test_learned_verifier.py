@@ -217,3 +217,12 @@ def test_photometric_jitter_keeps_the_front_pair_together(data, tmp_path):
     cfg = VerifierTrainConfig(steps=3, batch_size=8, image_size=32, holdout_inits=0.25, jitter=0.2)
     summary = train_verifier(data, tmp_path / "jit", cfg)
     assert summary["step"] == 3
+
+
+def test_from_demos_refuses_bad_options_and_datasets_by_name(tmp_path, capsys):
+    for argv, what in ((["--fractions", "0.5,2"], "fractions"), (["--fractions", "half"], "fractions"),
+                       (["--after", "-1"], "--after")):
+        assert main(["verify", "from-demos", "--dataset", str(tmp_path), "--out", str(tmp_path / "o"), *argv]) == 2
+        assert what in capsys.readouterr().err
+    assert main(["verify", "from-demos", "--dataset", str(tmp_path / "none"), "--out", str(tmp_path / "o")]) == 2
+    assert "does not exist" in capsys.readouterr().err
