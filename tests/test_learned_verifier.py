@@ -193,6 +193,7 @@ def test_several_collections_train_as_one_and_a_repeated_one_is_refused(tmp_path
                  "--batch-size", "8", "--image-size", "32", "--holdout-tasks", "libero_90/9"]) == 0
     manifest = json.loads((tmp_path / "run" / "manifest.json").read_text())
     assert manifest["data"] == f"{a},{b}" and manifest["split"]["heldout_tasks"] == 10
+    assert manifest["command"].startswith("seal train verifier --data ") and "--holdout-tasks libero_90/9" in manifest["command"]
 
 
 def test_photometric_jitter_keeps_the_front_pair_together(data, tmp_path):

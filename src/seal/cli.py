@@ -190,7 +190,8 @@ def _cmd_train_verifier(args) -> int:
                               jitter=args.jitter, weight_decay=args.weight_decay,
                               seed=0 if args.seed is None else args.seed, save_every_s=args.save_every_min * 60.0)
     with _stage_bars({"load": "decoding images", "train": "training"}, lambda info: info or "") as progress:
-        summary = train_verifier([Path(d) for d in args.data.split(",") if d], Path(args.out), cfg, progress=progress, threads=args.threads or 1)
+        summary = train_verifier([Path(d) for d in args.data.split(",") if d], Path(args.out), cfg, progress=progress,
+                                 threads=args.threads or 1, command="seal " + " ".join(args.argv))
     keys = ("step", "split", "heldout_inits", "heldout_tasks")
     print(json.dumps({k: ({m: v for m, v in summary[k].items() if m != "per_kind"} if isinstance(summary[k], dict)
                           and "per_kind" in summary[k] else summary[k]) for k in keys}))

@@ -241,7 +241,8 @@ def _save_state(out: Path, obj: dict) -> None:
     tmp.replace(out / STATE)
 
 
-def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig, *, progress=None, threads: int | None = 1) -> dict:
+def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig, *, progress=None, threads: int | None = 1,
+                   command: str = "") -> dict:
     """Train (or continue training) into ``out``; returns the summary written to metrics.json.
 
     ``progress(stage, done, total, info)``: stage "load" then "train"."""
@@ -330,11 +331,11 @@ def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig,
     result = summary(final=True)
     (out / "metrics.json").write_text(json.dumps(result, indent=1))
     plot_loss(out)
-    write_manifest(out, result)
+    write_manifest(out, result, command)
     return result
 
 
-def write_manifest(out: Path, result: dict) -> Path:
+def write_manifest(out: Path, result: dict, command: str = "") -> Path:
     """``manifest.json``: what a shipped checkpoint is (files with sha256 and size, the data it
     was trained on, its held-out figures). Shipping = copying model.safetensors, config.json and
     manifest.json into ``seal/verify/checkpoints/learned/``."""
@@ -350,7 +351,7 @@ def write_manifest(out: Path, result: dict) -> Path:
                 "data_fingerprint": result["data_fingerprint"], "split": result["split"],
                 "holdout_tasks": result["holdout_tasks"], "heldout_inits": headline(result["heldout_inits"]),
                 "heldout_tasks": headline(result["heldout_tasks"]),
-                "command": "seal train verifier (see docs/verifier.md)"}
+                "command": command or "seal train verifier (see docs/verifier.md)"}
     (out / "manifest.json").write_text(json.dumps(manifest, indent=1))
     return out / "manifest.json"
 
