@@ -187,8 +187,14 @@ def test_several_collections_train_as_one_and_a_repeated_one_is_refused(tmp_path
     assert len(arrays) == 22 and arrays.first.shape == (22, 3, 32, 32)
     assert arrays.task == ["libero_10/0"] * 12 + ["libero_90/9"] * 10
     assert fingerprint != load_arrays(a, 32)[1] and fingerprint == load_arrays([a, b], 32)[1]
-    with pytest.raises(InvalidInput, match="two --data directories"):
+    with pytest.raises(InvalidInput, match="is in both .* give each collection once"):
         load_arrays([a, a], 32)
+    # Another policy's collection may number its cases alike: not the same cases.
+    c = write_cases(tmp_path / "vla", 12, tasks=("libero_10/0",), inits=4)
+    for path in ds.shard_paths(c):
+        table = ds.read_cases(c).to_pylist()
+        ds.write_shard(c, path.name, [{**r, "policy": "vla"} for r in table])
+    assert len(load_arrays([a, c], 32)[0]) == 24
     assert main(["train", "verifier", "--data", f"{a},{b}", "--out", str(tmp_path / "run"), "--steps", "2",
                  "--batch-size", "8", "--image-size", "32", "--holdout-tasks", "libero_90/9"]) == 0
     manifest = json.loads((tmp_path / "run" / "manifest.json").read_text())

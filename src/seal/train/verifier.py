@@ -100,7 +100,8 @@ def _downsample(pngs: list[bytes], size: int) -> np.ndarray:
 
 
 def _load_one(data: Path, size: int, cache_dir: Path | None, progress) -> tuple[CaseArrays, list[str]]:
-    meta_cols = ["case_id", "task", "init_source", "init_index", "subplan", "plans", "subplan_index", "kind", "label"]
+    meta_cols = ["case_id", "policy", "task", "init_source", "init_index", "subplan", "plans", "subplan_index", "kind",
+                 "label"]
     meta = ds.read_cases(data, columns=meta_cols).to_pydict()
     if not meta["case_id"]:
         raise InvalidInput(f"{data} holds no cases; collect some with `seal verify collect`")
@@ -132,17 +133,25 @@ def _load_one(data: Path, size: int, cache_dir: Path | None, progress) -> tuple[
     init_key = [f"{t}:{s}:{i}" for t, s, i in zip(meta["task"], meta["init_source"], meta["init_index"])]
     return CaseArrays(first, final, wrist, list(meta["subplan"]), context,
                       np.asarray(meta["label"], dtype=np.float32), list(meta["task"]), list(meta["kind"]),
-                      init_key, list(meta["init_source"])), list(meta["case_id"])
+                      init_key, list(meta["init_source"])), [f"{p}|{c}" for p, c in zip(meta["policy"], meta["case_id"])]
 
 
 def load_arrays(data: Path | list[Path], size: int, cache_dir: Path | None = None,
                 progress=None) -> tuple[CaseArrays, str]:
-    """Every case of one or more collections at ``size`` px, and a fingerprint of the data (its case
-    ids, in the order given)."""
-    parts = [_load_one(Path(d), size, cache_dir, progress) for d in ([data] if isinstance(data, (str, Path)) else data)]
+    """Every case of one or more collections at ``size`` px, and a fingerprint of the data (its cases,
+    in the order given). A case is its policy and case id: two collections made with different
+    policies may number their cases alike, but the same case twice means a collection given twice."""
+    dirs = [Path(data)] if isinstance(data, (str, Path)) else [Path(d) for d in data]
+    parts = [_load_one(d, size, cache_dir, progress) for d in dirs]
     ids = [i for _, part_ids in parts for i in part_ids]
     if len(set(ids)) != len(ids):
-        raise InvalidInput("the same verification case appears in two --data directories; give each collection once")
+        seen: dict[str, Path] = {}
+        for d, (_, part_ids) in zip(dirs, parts):
+            for i in part_ids:
+                if i in seen:
+                    raise InvalidInput(f"verification case {i.split('|', 1)[1]!r} ({i.split('|', 1)[0]} policy) is in "
+                                       f"both {seen[i]} and {d}; give each collection once")
+                seen[i] = d
     fingerprint = hashlib.sha1("\n".join(ids).encode()).hexdigest()[:16]
     if len(parts) == 1:
         return parts[0][0], fingerprint
