@@ -121,9 +121,28 @@ def test_bad_checkpoints_are_refused_with_what_is_wrong(run, tmp_path):
         LearnedVerifier(wrong)
     with pytest.raises(InvalidInput, match="no learned-verifier checkpoint"):
         LearnedVerifier(tmp_path / "nothing")
-    if not (DEFAULT_CHECKPOINT / "model.safetensors").is_file():
-        with pytest.raises(InvalidInput, match="seal train verifier"):
-            make_verifier("learned")
+
+
+def test_without_a_shipped_checkpoint_plain_learned_says_how_to_make_one(tmp_path, monkeypatch):
+    import seal.verify.learned as learned
+
+    monkeypatch.setattr(learned, "DEFAULT_CHECKPOINT", tmp_path / "not-shipped")
+    with pytest.raises(InvalidInput, match="seal train verifier"):
+        make_verifier("learned")
+
+
+def test_the_shipped_checkpoint_matches_its_manifest_and_judges(data):
+    import hashlib
+
+    manifest = json.loads((DEFAULT_CHECKPOINT / "manifest.json").read_text())
+    for name, entry in manifest["files"].items():
+        blob = (DEFAULT_CHECKPOINT / name).read_bytes()
+        assert (len(blob), hashlib.sha256(blob).hexdigest()) == (entry["bytes"], entry["sha256"]), name
+    assert manifest["files"]["model.safetensors"]["bytes"] <= 20e6
+    assert manifest["command"].startswith("seal train verifier ") and manifest["heldout_inits"]["n"] > 0
+    verifier = make_verifier("learned")
+    verdicts = verifier.verify_batch(_requests(data, 4))
+    assert len(verdicts) == 4 and all(v.success in (True, False) and 0.0 <= v.score <= 1.0 for v in verdicts)
 
 
 def _requests(data, n=10):
