@@ -372,20 +372,21 @@ def ending_rows(data: ReportData) -> list[EndingRow]:
         rows = [r for r in data.rows if r.config_hash == m.config_hash]
         counts = {e: [0, 0] for e in ENDINGS}
         for r in rows:
-            end = data.ended_by(r)
-            counts[end][0] += 1
-            counts[end][1] += not succeeded(r)
+            end = counts.setdefault(data.ended_by(r), [0, 0])  # a reason this report does not know yet still counts
+            end[0] += 1
+            end[1] += not succeeded(r)
         out.append(EndingRow(m, len(rows), {e: tuple(v) for e, v in counts.items()}))
     return out
 
 
 def ending_display(rows: list[EndingRow]) -> Table:
-    used = [e for e in ENDINGS if any(r.counts[e][0] for r in rows)]
+    known = list(ENDINGS) + sorted({e for r in rows for e in r.counts} - set(ENDINGS))
+    used = [e for e in known if any(r.counts.get(e, (0, 0))[0] for r in rows)]
     headers = ["Method", "trials"] + used
-    body = [[r.method.label, str(r.trials)] + [_ending_cell(*r.counts[e]) for e in used] for r in rows]
+    body = [[r.method.label, str(r.trials)] + [_ending_cell(*r.counts.get(e, (0, 0))) for e in used] for r in rows]
     notes = ["Each cell: episodes that ended this way (of them, failures in brackets). A failure that ended "
              "before its step budget is one the policy gave up on: SEAL verifies actions, not the policy's "
-             "own judgement of progress."] + [f"{e}: {_ENDING_NOTES[e]}." for e in used]
+             "own judgement of progress."] + [f"{e}: {_ENDING_NOTES[e]}." for e in used if e in _ENDING_NOTES]
     return Table("How episodes ended", headers, body, set(), notes, left=1)
 
 
@@ -395,8 +396,8 @@ def _ending_cell(n: int, failed: int) -> str:
 
 def ending_csv(rows: list[EndingRow]) -> str:
     return to_csv(["method", "config_hash", "trials", "ended_by", "episodes", "failed"],
-                  [[r.method.label, r.method.config_hash, r.trials, e, *r.counts[e]] for r in rows for e in ENDINGS
-                   if r.counts[e][0]])
+                  [[r.method.label, r.method.config_hash, r.trials, e, *n] for r in rows for e, n in r.counts.items()
+                   if n[0]])
 
 
 # ---- error trials ------------------------------------------------------------------------------

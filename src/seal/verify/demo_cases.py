@@ -37,7 +37,7 @@ from typing import Callable
 
 import numpy as np
 
-from seal.errors import InvalidInput
+from seal.errors import InvalidInput, SimulationError
 from seal.verify import dataset as ds
 from seal.verify.base import VerifyRequest
 from seal.verify.oracle import OracleVerifier
@@ -93,8 +93,6 @@ def _segments(meta: dict) -> list[tuple[str, int, int]]:
 
 def replay_cases(world, meta: dict, actions: np.ndarray, base: dict, opts: DemoCaseOptions) -> tuple[list[dict], bool]:
     """Replay one episode in ``world`` and return (case rows, whether the replay succeeded)."""
-    from seal.sim.world import AGENT_CAMERA  # noqa: F401  (world import side effects: MuJoCo GL)
-
     oracle = OracleVerifier()
     plans = tuple(meta["subplans"])
     segments = _segments(meta)
@@ -167,6 +165,7 @@ def from_demos(dataset: Path, out: Path, opts: DemoCaseOptions, *, tasks: list[i
             raise InvalidInput(f"{out} holds cases made with other settings ({', '.join(changed)}); "
                                "use another --out, or the same settings to continue")
     done = {p.name for p in ds.shard_paths(out)}
+    failed_before = ds.read_info(out)["collection"].get("replay_failed", []) if (out / "info.json").is_file() else []
     plan = []
     per_task: dict[str, int] = {}
     for e in range(reader.num_episodes):
@@ -202,7 +201,10 @@ def from_demos(dataset: Path, out: Path, opts: DemoCaseOptions, *, tasks: list[i
             base = {"suite": task.suite, "task_id": task.task_id, "task": task.key, "init_source": SOURCE,
                     "init_index": e, "init_seed": int(meta["meta"]["start_seed"]), "episode": e, "seed": -1,
                     "policy": "scripted", "knobs": SOURCE, "instruction": task.instruction}
-            rows, ok = replay_cases(world, meta, actions, base, opts)
+            try:
+                rows, ok = replay_cases(world, meta, actions, base, opts)
+            except SimulationError:  # the recorded start cannot be drawn again (another LIBERO version?)
+                rows, ok = [], False
             if not ok:  # the replay drifted from the recording: its labels would still be true, but
                 rows = []  # its states are not the demonstration's; keep the data set honest
                 summary["replay_failed"].append(e)
@@ -211,7 +213,8 @@ def from_demos(dataset: Path, out: Path, opts: DemoCaseOptions, *, tasks: list[i
             summary["cases"] += len(rows)
             summary["success"] += sum(r["label"] for r in rows)
             summary["failure"] += sum(not r["label"] for r in rows)
-            ds.write_info(out, {"collection": {"settings": settings, "replay_failed": summary["replay_failed"]}})
+            ds.write_info(out, {"collection": {"settings": settings,
+                                               "replay_failed": sorted({*failed_before, *summary["replay_failed"]})}})
             if progress is not None:
                 progress(n + 1, len(plan), f"episode {e} ({task.key}): {len(rows)} cases")
     finally:
