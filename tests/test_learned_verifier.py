@@ -252,3 +252,15 @@ def test_from_demos_refuses_bad_options_and_datasets_by_name(tmp_path, capsys):
         assert what in capsys.readouterr().err
     assert main(["verify", "from-demos", "--dataset", str(tmp_path / "none"), "--out", str(tmp_path / "o")]) == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+def test_score_gives_a_runs_own_heldout_figures_per_policy(run, data, tmp_path, capsys):
+    out, summary = run
+    assert main(["train", "verifier", "--data", str(data), "--out", str(tmp_path / "score"), "--score", str(out),
+                 "--holdout-tasks", "libero_10/1", "--holdout-inits", "0.25"]) == 0
+    scores = json.loads(capsys.readouterr().out.strip().splitlines()[-1])[str(out)]
+    assert set(scores) == {"heldout_inits/scripted", "heldout_tasks/scripted"}
+    for part in ("heldout_inits", "heldout_tasks"):  # the same split and weights: the run's own final figures
+        mine = scores[f"{part}/scripted"]
+        assert (mine["n"], mine["accuracy"], mine["confusion"]) == (
+            summary[part]["n"], summary[part]["accuracy"], summary[part]["confusion"])

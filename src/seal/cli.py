@@ -189,6 +189,14 @@ def _cmd_train_verifier(args) -> int:
                               image_size=args.image_size, holdout_tasks=holdout, holdout_inits=args.holdout_inits,
                               jitter=args.jitter, weight_decay=args.weight_decay,
                               seed=0 if args.seed is None else args.seed, save_every_s=args.save_every_min * 60.0)
+    if args.score:
+        from seal.train.verifier import score_runs
+
+        scores = score_runs([Path(d) for d in args.data.split(",") if d], [Path(r) for r in args.score.split(",") if r],
+                            cfg, cache_dir=Path(args.out) if args.out else None)
+        print(json.dumps({run: {part: None if m is None else {k: v for k, v in m.items() if k != "per_kind"}
+                                for part, m in res.items()} for run, res in scores.items()}))
+        return 0
     with _stage_bars({"load": "decoding images", "train": "training"}, lambda info: info or "") as progress:
         summary = train_verifier([Path(d) for d in args.data.split(",") if d], Path(args.out), cfg, progress=progress,
                                  threads=args.threads or 1, command="seal " + " ".join(args.argv))
@@ -546,6 +554,9 @@ def _add_train(sub) -> None:
                      help="augmentation: brightness/contrast factors in [1-j, 1+j] per case (default 0: off)")
     ver.add_argument("--weight-decay", type=float, default=1e-4, help="AdamW weight decay (default 1e-4)")
     ver.add_argument("--save-every-min", type=float, default=5.0, help="minutes between checkpoints")
+    ver.add_argument("--score", default=None, help="instead of training: score these checkpoint directories "
+                     "(comma-separated) on the held-out splits this command's --data, --holdout-tasks, --holdout-inits "
+                     "and --seed make, per split and per policy that made the cases (one JSON; --out caches images)")
     train.set_defaults(func=_cmd_train)
 
 

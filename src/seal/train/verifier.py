@@ -86,6 +86,7 @@ class CaseArrays:
     kind: list[str]
     init_key: list[str]  # task:source:index
     source: list[str]  # init_source: cases from demonstrations ("demo") are training data only
+    policy: list[str]  # the policy whose rounds made the case (scripted, vla, ...)
 
     def __len__(self) -> int:
         return len(self.label)
@@ -133,7 +134,8 @@ def _load_one(data: Path, size: int, cache_dir: Path | None, progress) -> tuple[
     init_key = [f"{t}:{s}:{i}" for t, s, i in zip(meta["task"], meta["init_source"], meta["init_index"])]
     return CaseArrays(first, final, wrist, list(meta["subplan"]), context,
                       np.asarray(meta["label"], dtype=np.float32), list(meta["task"]), list(meta["kind"]),
-                      init_key, list(meta["init_source"])), [f"{p}|{c}" for p, c in zip(meta["policy"], meta["case_id"])]
+                      init_key, list(meta["init_source"]), list(meta["policy"])), \
+        [f"{p}|{c}" for p, c in zip(meta["policy"], meta["case_id"])]
 
 
 def load_arrays(data: Path | list[Path], size: int, cache_dir: Path | None = None,
@@ -159,7 +161,8 @@ def load_arrays(data: Path | list[Path], size: int, cache_dir: Path | None = Non
     cat = lambda name: np.concatenate([getattr(a, name) for a in arrays])  # noqa: E731
     join = lambda name: [x for a in arrays for x in getattr(a, name)]  # noqa: E731
     return CaseArrays(cat("first"), cat("final"), cat("wrist"), join("subplan"), join("context"), cat("label"),
-                      join("task"), join("kind"), join("init_key"), join("source")), fingerprint
+                      join("task"), join("kind"), join("init_key"), join("source"),
+                      join("policy")), fingerprint
 
 
 def split(arrays: CaseArrays, cfg: VerifierTrainConfig) -> dict[str, np.ndarray]:
@@ -206,6 +209,31 @@ def evaluate(net, arrays, idx, vocab, max_words, threshold) -> dict | None:
     kinds = np.array(arrays.kind)[idx]
     out["per_kind"] = {k: binary_metrics(arrays.label[idx][kinds == k] > 0.5, (probs >= threshold)[kinds == k])
                        for k in ds.KINDS if (kinds == k).any()}
+    return out
+
+
+def score_runs(data: list[Path], runs: list[Path], cfg: VerifierTrainConfig, cache_dir: Path | None = None) -> dict:
+    """Checkpoints scored on the held-out splits ``cfg`` makes of ``data`` (the split a training run
+    with these settings would hold out), per split and per policy that made the cases: so runs
+    trained on different data are compared on the same cases. Run -> "split/policy" -> metrics."""
+    arrays_at: dict[int, CaseArrays] = {}
+    out: dict[str, dict] = {}
+    for run in runs:
+        net, config, vocab = load_checkpoint(run)
+        size = int(config["image_size"])
+        if size not in arrays_at:
+            arrays_at[size] = load_arrays(data, size, cache_dir=cache_dir)[0]
+        arrays = arrays_at[size]
+        parts = split(arrays, cfg)
+        policies = np.array(arrays.policy)
+        res = {}
+        for part in ("heldout_inits", "heldout_tasks"):
+            idx = parts[part]
+            for policy in sorted(set(policies[idx])):
+                m = evaluate(net, arrays, idx[policies[idx] == policy], vocab, int(config["max_words"]),
+                             float(config["threshold"]))
+                res[f"{part}/{policy}"] = m
+        out[str(run)] = res
     return out
 
 
