@@ -247,7 +247,7 @@ def test_photometric_jitter_keeps_the_front_pair_together(data, tmp_path):
 
 def test_from_demos_refuses_bad_options_and_datasets_by_name(tmp_path, capsys):
     for argv, what in ((["--fractions", "0.5,2"], "fractions"), (["--fractions", "half"], "fractions"),
-                       (["--after", "-1"], "--after")):
+                       (["--after", "-1"], "--after"), (["--tasks", "0,two"], "--tasks")):
         assert main(["verify", "from-demos", "--dataset", str(tmp_path), "--out", str(tmp_path / "o"), *argv]) == 2
         assert what in capsys.readouterr().err
     assert main(["verify", "from-demos", "--dataset", str(tmp_path / "none"), "--out", str(tmp_path / "o")]) == 2

@@ -161,7 +161,10 @@ def _cmd_verify_from_demos(args) -> int:
         fractions = tuple(float(f) for f in args.fractions.split(","))
     except ValueError:
         raise InvalidInput(f"--fractions must be comma-separated numbers in (0, 1], got {args.fractions!r}") from None
-    tasks = None if args.tasks is None else [int(t) for t in args.tasks.split(",")]
+    try:
+        tasks = None if args.tasks is None else [int(t) for t in args.tasks.split(",")]
+    except ValueError:
+        raise InvalidInput(f"--tasks must be comma-separated task ids, got {args.tasks!r}") from None
     opts = DemoCaseOptions(fractions=fractions, after=args.after, episodes_per_task=args.episodes_per_task)
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn()) as bar:
         job = bar.add_task("replaying demonstrations", total=None)

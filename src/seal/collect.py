@@ -106,7 +106,6 @@ class CaseRecorder:
         if verdict.success is None:
             self.unknown += 1
             return
-        atoms = list(verdict.extra.get("atoms", []))
         images = (req.first_agent, req.final_agent, req.final_wrist)
         for name, img in zip(ds.IMAGE_COLUMNS, images):
             if img is None or img.shape != (ds.IMAGE_SIZE, ds.IMAGE_SIZE, 3):
@@ -115,16 +114,9 @@ class CaseRecorder:
         b = self.base
         case_id = (f"{b['task']}:{b['init_source']}:{b['init_index']}:e{b['episode']}:s{self._subplan_number}"
                    f":r{fields['round']}:c{fields['slot']}:{fields['steps']}")
-        self.rows.append({
-            **b, "case_id": case_id, "plans": list(req.plans), "subplan": req.subplan,
-            "subplan_index": -1 if req.index is None else int(req.index), "subplan_number": self._subplan_number,
-            "kind": ds.subplan_kind(req.subplan, atoms), "round": int(fields["round"]),
-            "candidate": int(fields["slot"]), "steps": int(fields["steps"]), "ended_by": fields["ended_by"],
-            "label": bool(verdict.success), "atoms": atoms,
-            "atom_values": [bool(req.scene.facts[a]) for a in atoms],
-            "objects": sorted(set(req.scene.bodies) | set(req.scene.sites)),
-            **{name: ds.encode_png(img) for name, img in zip(ds.IMAGE_COLUMNS, images)},
-        })
+        self.rows.append(ds.case_row(b, req, verdict, case_id=case_id, subplan_number=self._subplan_number,
+                                     round=fields["round"], candidate=fields["slot"], steps=fields["steps"],
+                                     ended_by=fields["ended_by"]))
 
 
 # ---- init states -----------------------------------------------------------------------------------

@@ -216,15 +216,15 @@ def score_runs(data: list[Path], runs: list[Path], cfg: VerifierTrainConfig, cac
     """Checkpoints scored on the held-out splits ``cfg`` makes of ``data`` (the split a training run
     with these settings would hold out), per split and per policy that made the cases: so runs
     trained on different data are compared on the same cases. Run -> "split/policy" -> metrics."""
-    arrays_at: dict[int, CaseArrays] = {}
+    at_size: dict[int, tuple[CaseArrays, dict]] = {}  # the cases (and their split) at each input size
     out: dict[str, dict] = {}
     for run in runs:
         net, config, vocab = load_checkpoint(run)
         size = int(config["image_size"])
-        if size not in arrays_at:
-            arrays_at[size] = load_arrays(data, size, cache_dir=cache_dir)[0]
-        arrays = arrays_at[size]
-        parts = split(arrays, cfg)
+        if size not in at_size:
+            arrays = load_arrays(data, size, cache_dir=cache_dir)[0]
+            at_size[size] = arrays, split(arrays, cfg)
+        arrays, parts = at_size[size]
         policies = np.array(arrays.policy)
         res = {}
         for part in ("heldout_inits", "heldout_tasks"):

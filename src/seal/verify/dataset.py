@@ -175,6 +175,23 @@ def write_info(root: Path, info: dict) -> None:
     os.replace(tmp, root / "info.json")
 
 
+def case_row(base: dict, request: VerifyRequest, verdict, *, case_id: str, subplan_number: int, round: int,
+             candidate: int, steps: int, ended_by: str) -> dict:
+    """One case in this layout: what ``request`` showed a verifier, labelled by the oracle's ``verdict``
+    (its grounded atoms in ``verdict.extra["atoms"]``, their truth in ``request.scene``). ``base``: the
+    episode's columns (suite, task, init, seed, policy, ...)."""
+    atoms = list(verdict.extra.get("atoms", []))
+    scene = request.scene
+    images = (request.first_agent, request.final_agent, request.final_wrist)
+    return {**base, "case_id": case_id, "plans": list(request.plans), "subplan": request.subplan,
+            "subplan_index": -1 if request.index is None else int(request.index), "subplan_number": subplan_number,
+            "kind": subplan_kind(request.subplan, atoms), "round": int(round), "candidate": int(candidate),
+            "steps": int(steps), "ended_by": ended_by, "label": bool(verdict.success), "atoms": atoms,
+            "atom_values": [bool(scene.facts[a]) for a in atoms],
+            "objects": sorted(set(scene.bodies) | set(scene.sites)),
+            **{name: encode_png(img) for name, img in zip(IMAGE_COLUMNS, images)}}
+
+
 # ---- reading -------------------------------------------------------------------------------------
 def read_info(root: Path) -> dict:
     path = Path(root) / "info.json"

@@ -124,15 +124,10 @@ def replay_cases(world, meta: dict, actions: np.ndarray, base: dict, opts: DemoC
                 verdict = oracle.judge(req)
                 if verdict.success is None:
                     continue
-                atoms = list(verdict.extra.get("atoms", []))
-                rows.append({
-                    **base, "case_id": f"{base['task']}:{SOURCE}:{base['init_index']}:s{i + 1}:f{t}",
-                    "plans": list(plans), "subplan": text, "subplan_index": i, "subplan_number": i + 1,
-                    "kind": ds.subplan_kind(text, atoms), "round": 0, "candidate": slot, "steps": t - start,
-                    "ended_by": SOURCE, "label": bool(verdict.success), "atoms": atoms,
-                    "atom_values": [bool(req.scene.facts[a]) for a in atoms], "objects": objects,
-                    **{c: ds.encode_png(img) for c, img in zip(ds.IMAGE_COLUMNS, (req.first_agent, obs.agent, obs.wrist))},
-                })
+                rows.append(ds.case_row(base, req, verdict,
+                                        case_id=f"{base['task']}:{SOURCE}:{base['init_index']}:s{i + 1}:f{t}",
+                                        subplan_number=i + 1, round=0, candidate=slot, steps=t - start,
+                                        ended_by=SOURCE))
         if t < length:
             world.step(actions[t])
     return rows, bool(world.success())
@@ -160,7 +155,7 @@ def from_demos(dataset: Path, out: Path, opts: DemoCaseOptions, *, tasks: list[i
     settings = {**opts.settings(), "dataset": str(Path(dataset).resolve())}
     if (out / "info.json").is_file():
         old = ds.read_info(out).get("collection", {}).get("settings", {})
-        changed = sorted(k for k in ("source", "fractions", "after") if old.get(k) != settings[k])
+        changed = sorted(k for k in ("source", "fractions", "after", "dataset") if old.get(k) != settings[k])
         if changed:
             raise InvalidInput(f"{out} holds cases made with other settings ({', '.join(changed)}); "
                                "use another --out, or the same settings to continue")
