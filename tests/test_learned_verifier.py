@@ -100,6 +100,21 @@ def test_resuming_gives_the_weights_of_an_uninterrupted_run(data, tmp_path):
         train_verifier(data, tmp_path / "resumed", VerifierTrainConfig(**{**cfg.__dict__, "lr": 0.1}))
 
 
+def test_cosine_schedule_decays_to_zero_and_fixes_the_run_length(data, tmp_path):
+    cfg = VerifierTrainConfig(steps=4, batch_size=8, image_size=32, holdout_inits=0.25, lr=0.01, lr_schedule="cosine")
+    assert [round(cfg.lr_at(s), 6) for s in (0, 2, 4)] == [0.01, 0.005, 0.0]
+    train_verifier(data, tmp_path / "cos", cfg)
+    state = torch.load(tmp_path / "cos" / "train_state.pt", weights_only=True)
+    assert state["optimizer"]["param_groups"][0]["lr"] == pytest.approx(cfg.lr_at(3))  # the last step's rate
+    # a cosine run's length is its schedule: it cannot be continued to more steps
+    with pytest.raises(InvalidInput, match="other settings"):
+        train_verifier(data, tmp_path / "cos", VerifierTrainConfig(**{**cfg.__dict__, "steps": 8}))
+    # runs from before the schedule existed (constant) keep their identity, so they stay resumable
+    assert "lr_schedule" not in VerifierTrainConfig().identity()
+    with pytest.raises(InvalidInput, match="constant, cosine"):
+        VerifierTrainConfig(lr_schedule="linear").lr_at(0)
+
+
 def test_bad_checkpoints_are_refused_with_what_is_wrong(run, tmp_path):
     out, _ = run
     bad = tmp_path / "truncated"

@@ -190,7 +190,7 @@ def _cmd_train_verifier(args) -> int:
     holdout = tuple(t.strip() for t in (args.holdout_tasks or "").split(",") if t.strip())
     cfg = VerifierTrainConfig(steps=args.steps or 2000, batch_size=args.batch_size or 64, lr=args.lr or 1e-3,
                               image_size=args.image_size, holdout_tasks=holdout, holdout_inits=args.holdout_inits,
-                              jitter=args.jitter, weight_decay=args.weight_decay,
+                              jitter=args.jitter, weight_decay=args.weight_decay, lr_schedule=args.lr_schedule,
                               seed=0 if args.seed is None else args.seed, save_every_s=args.save_every_min * 60.0)
     if args.score:
         from seal.train.verifier import score_runs
@@ -556,6 +556,8 @@ def _add_train(sub) -> None:
     ver.add_argument("--jitter", type=float, default=0.0,
                      help="augmentation: brightness/contrast factors in [1-j, 1+j] per case (default 0: off)")
     ver.add_argument("--weight-decay", type=float, default=1e-4, help="AdamW weight decay (default 1e-4)")
+    ver.add_argument("--lr-schedule", default="constant", choices=["constant", "cosine"],
+                     help="learning rate over the run: constant, or cosine decay to 0 at --steps (default constant)")
     ver.add_argument("--save-every-min", type=float, default=5.0, help="minutes between checkpoints")
     ver.add_argument("--score", default=None, help="instead of training: score these checkpoint directories "
                      "(comma-separated) on the held-out splits this command's --data, --holdout-tasks, --holdout-inits "

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -60,6 +61,9 @@ class VerifierTrainConfig:
     # augmentation: per-case brightness and contrast factors in [1 - jitter, 1 + jitter], one pair for
     # both front views (their difference is the evidence) and one for the wrist view
     jitter: float = 0.0
+    # "constant", or "cosine": lr * (1 + cos(pi * step / steps)) / 2, which ends training at a small step
+    # size (the held-out figures of a constant-lr run swing by several points between evaluations)
+    lr_schedule: str = "constant"
     log_every: int = 20
     eval_every: int = 200
     save_every_s: float = 300.0
@@ -67,10 +71,20 @@ class VerifierTrainConfig:
     def identity(self) -> dict:
         """What a resumed run must share with the run it continues."""
         d = asdict(self)
-        for k in ("steps", "log_every", "eval_every", "save_every_s"):
+        # a constant-lr run may be continued to more steps; a cosine run's schedule is its length
+        for k in ("log_every", "eval_every", "save_every_s") + (("steps",) if self.lr_schedule == "constant" else ()):
             d.pop(k)
+        if self.lr_schedule == "constant":  # runs from before the schedule existed stay resumable
+            d.pop("lr_schedule")
         d["holdout_tasks"] = list(d["holdout_tasks"])
         return d
+
+    def lr_at(self, step: int) -> float:
+        if self.lr_schedule == "constant":
+            return self.lr
+        if self.lr_schedule == "cosine":
+            return self.lr * 0.5 * (1.0 + math.cos(math.pi * min(step, self.steps) / self.steps))
+        raise InvalidInput(f"lr schedule {self.lr_schedule!r} is not one of: constant, cosine")
 
 
 # ---- data ----------------------------------------------------------------------------------------------
@@ -312,6 +326,7 @@ def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig,
     if state is not None:
         opt.load_state_dict(state["optimizer"])
     max_words, threshold = int(config["max_words"]), float(config["threshold"])
+    cfg.lr_at(0)  # a bad schedule name fails before any work
     if len(train_idx) < 2:
         raise InvalidInput(f"only {len(train_idx)} training case(s); collect more")
 
@@ -342,6 +357,8 @@ def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig,
             torch.manual_seed(cfg.seed * 1_000_003 + step)
             photo = (tuple(rng.uniform(1 - cfg.jitter, 1 + cfg.jitter, (2, b))),
                      tuple(rng.uniform(1 - cfg.jitter, 1 + cfg.jitter, (2, b)))) if cfg.jitter else None
+            for group in opt.param_groups:
+                group["lr"] = cfg.lr_at(step)
             logits = net(*_tensors(arrays, idx, vocab, max_words, shifts, photo))
             loss = F.binary_cross_entropy_with_logits(logits, torch.from_numpy(arrays.label[idx]))
             opt.zero_grad()
