@@ -98,7 +98,11 @@ def test_noise_sweep_writes_rows_as_it_goes_resumes_and_plots(tmp_path, capsys):
     assert len({(r["init"], r["seed"]) for r in rows}) == 1  # every cell on the same start and seed
     assert set(result["grid"]) == {"fp=0,fn=0", "fp=1,fn=0"} and result["grid"]["fp=0,fn=0"]["episodes"] == 1
     md = (tmp_path / "sweep" / "sweep.md").read_text()
-    assert "learned:run" in md and "| 0 |" in md
+    assert "learned:run" in md and "| 0 |" in md and "(misaligned expert)" in md
+    from seal.benchmarks.sweep import markdown, summarize
+
+    vla_md = markdown(summarize(rows, (0.0, 1.0), (0.0,)), (0.0, 1.0), (0.0,), [], "vla")
+    assert "(vla)" in vla_md and "misaligned" not in vla_md  # the table names the policy it ran
     assert (tmp_path / "sweep" / "sweep.png").stat().st_size > 10_000
     assert main(args) == 0
     assert _json(capsys)["episodes_run"] == 0  # resumed: nothing ran twice

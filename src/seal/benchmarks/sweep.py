@@ -71,13 +71,14 @@ def run(args) -> dict:
     out = Path(args.out) if getattr(args, "out", None) else DEFAULT_OUT
     out.mkdir(parents=True, exist_ok=True)
     policy = getattr(args, "policy", None) or "scripted"
-    common = {"k": args.k, "knobs": "misaligned", "policy": policy}
+    knobs = "misaligned" if policy == "scripted" else None  # the scripted expert's setting only
+    common = {"k": args.k, "knobs": knobs or "misaligned", "policy": policy}
     cells = {"base": MethodSpec(method="base", **common)}
     for fp in fps:
         for fn in fns:
             cells[cell_name(fp, fn)] = MethodSpec(method="seal", verifier="noisy", false_positive=fp,
                                                   false_negative=fn, **common)
-    settings = {"suite": args.suite, "k": args.k, "policy": policy, "knobs": "misaligned",
+    settings = {"suite": args.suite, "k": args.k, "policy": policy, "knobs": knobs,
                 "max_steps": getattr(args, "max_steps", None)}
     settings_path = out / "settings.json"
     if settings_path.is_file() and json.loads(settings_path.read_text()) != settings:
@@ -112,11 +113,11 @@ def run(args) -> dict:
             and r["trial"] < trials]
     table = summarize(rows, fps, fns)
     points = load_points(getattr(args, "points", None))
-    md = markdown(table, fps, fns, points)
+    md = markdown(table, fps, fns, points, policy)
     (out / "sweep.md").write_text(md)
     plot = draw(table, fps, fns, points, out / "sweep.png")
     return {"suite": args.suite, "tasks": tasks, "trials": trials, "k": args.k, "policy": policy,
-            "knobs": "misaligned", "max_steps": getattr(args, "max_steps", None), "episodes_run": ran,
+            "knobs": knobs, "max_steps": getattr(args, "max_steps", None), "episodes_run": ran,
             "base_success": table["base"], "grid": {name: table["cells"][name] for name in table["cells"]},
             "points": points, "results": str(results), "markdown": str(out / "sweep.md"), "plot": str(plot)}
 
@@ -149,9 +150,10 @@ def load_points(text: str | None) -> list[dict]:
     return points
 
 
-def markdown(table: dict, fps, fns, points) -> str:
+def markdown(table: dict, fps, fns, points, policy: str = "scripted") -> str:
     base = table["base"]["success"]
-    text = (f"SEAL success (misaligned expert) by the noisy verifier's error rates; policy alone: "
+    who = "misaligned expert" if policy == "scripted" else policy
+    text = (f"SEAL success ({who}) by the noisy verifier's error rates; policy alone: "
             f"{'-' if base is None else f'{base:.3f}'} ({table['base']['episodes']} episodes).\n\n")
     text += "| FN rate \\ FP rate | " + " | ".join(f"{fp:g}" for fp in fps) + " |\n"
     text += "| --- |" + " ---: |" * len(fps) + "\n"
