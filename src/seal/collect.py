@@ -237,7 +237,10 @@ def collect(opts: CollectOptions, out: Path, *, progress: Callable | None = None
             "counts": {k: {"success": v["success"], "failure": v["failure"], "episodes": len(v["episodes"])}
                        for k, v in sorted(counts.items())}}})
 
-    total = sum(v["success"] + v["failure"] for v in have_all.values())
+    # cases kept so far by the tasks asked for (a run continuing some tasks of a collection counts
+    # against their target, not the other tasks' cases)
+    keys = {get_task(opts.suite, t).key for t in opts.tasks}
+    total = sum(v["success"] + v["failure"] for k, v in have_all.items() if k in keys)
     skipped: dict[str, str] = {}  # task -> why it was given up (the other tasks go on)
     for task_id in opts.tasks:
         task = get_task(opts.suite, task_id)
