@@ -99,10 +99,14 @@ def test_noise_sweep_writes_rows_as_it_goes_resumes_and_plots(tmp_path, capsys):
     assert set(result["grid"]) == {"fp=0,fn=0", "fp=1,fn=0"} and result["grid"]["fp=0,fn=0"]["episodes"] == 1
     md = (tmp_path / "sweep" / "sweep.md").read_text()
     assert "learned:run" in md and "| 0 |" in md and "(misaligned expert)" in md
-    from seal.benchmarks.sweep import markdown, summarize
+    from seal.benchmarks.sweep import load_points, markdown, summarize
 
     vla_md = markdown(summarize(rows, (0.0, 1.0), (0.0,)), (0.0, 1.0), (0.0,), [], "vla")
     assert "(vla)" in vla_md and "misaligned" not in vla_md  # the table names the policy it ran
+    shipped = tmp_path / "shipped.json"
+    shipped.write_text(json.dumps({"verifier": "learned:/x/seal/verify/checkpoints/learned", "fp_rate": 0.1,
+                                   "fn_rate": 0.05, "cases": 9}))
+    assert [p["label"] for p in load_points(f"{point},{shipped}")] == ["learned:run", "learned"]
     assert (tmp_path / "sweep" / "sweep.png").stat().st_size > 10_000
     assert main(args) == 0
     assert _json(capsys)["episodes_run"] == 0  # resumed: nothing ran twice

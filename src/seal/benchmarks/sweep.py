@@ -144,7 +144,8 @@ def load_points(text: str | None) -> list[dict]:
         label = str(result.get("verifier", path.stem))
         if ":" in label and "/" in label:  # learned:/long/path/RUN -> learned:RUN
             kind, _, where = label.partition(":")
-            label = f"{kind}:{Path(where).name}"
+            # the shipped checkpoint's directory is named for its kind: learned:.../learned -> learned
+            label = kind if Path(where).name == kind else f"{kind}:{Path(where).name}"
         points.append({"label": label, "fp_rate": result["fp_rate"],
                        "fn_rate": result["fn_rate"], "cases": result.get("cases")})
     return points
@@ -200,7 +201,7 @@ def draw(table: dict, fps, fns, points, path: Path) -> Path:
                 ax.text((xe[j] + xe[j + 1]) / 2, (ye[i] + ye[i + 1]) / 2, f"{grid[i, j]:.2f}", ha="center",
                         va="center", color="black" if grid[i, j] > 0.6 else "white", fontsize=9)
     for p in points:
-        ax.plot(p["fp_rate"], p["fn_rate"], marker="*", markersize=14, color="red", markeredgecolor="black",
+        ax.plot(p["fp_rate"], p["fn_rate"], marker="*", markersize=11, color="red", markeredgecolor="black",
                 clip_on=False, zorder=5)
         ax.annotate(p["label"], (p["fp_rate"], p["fn_rate"]), textcoords="offset points", xytext=(6, 6),
                     fontsize=8, color="red")
