@@ -214,6 +214,24 @@ def test_bench_verifier_scores_the_learned_verifier(run, data, tmp_path, capsys)
     assert np.isclose(result["fp_rate"], c["fp"] / max(c["fp"] + c["tn"], 1))
 
 
+def test_exported_heldout_cases_score_as_the_training_run_scored_them(run, data, tmp_path, capsys):
+    out, summary = run
+    dest = tmp_path / "heldout"
+    assert main(["train", "verifier", "--data", str(data), "--holdout-tasks", "libero_10/1", "--holdout-inits", "0.25",
+                 "--export-heldout", "--out", str(dest)]) == 0
+    counts = json.loads(capsys.readouterr().out)["cases"]
+    assert counts == {"heldout_inits": 30, "heldout_tasks": 120} == {k: summary["split"][k] for k in counts}
+    arrays, _ = load_arrays(data, 32)
+    parts = split(arrays, CFG)
+    exported = ds.read_cases(dest / "heldout_inits", columns=["case_id"]).column("case_id").to_pylist()
+    ids = ds.read_cases(data, columns=["case_id"]).column("case_id").to_pylist()
+    assert sorted(exported) == sorted(ids[i] for i in parts["heldout_inits"])
+    # any verifier scored on the export sees what the run's own held-out evaluation saw
+    assert main(["bench", "verifier", "--verifier", f"learned:{out}", "--data", str(dest / "heldout_inits")]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["cases"] == 30 and result["accuracy"] == pytest.approx(summary["heldout_inits"]["accuracy"])
+
+
 def test_several_collections_train_as_one_and_a_repeated_one_is_refused(tmp_path):
     a = write_cases(tmp_path / "l10", 12, tasks=("libero_10/0",), inits=4)
     b = write_cases(tmp_path / "l90", 10, tasks=("libero_90/9",), inits=4, seed=1)

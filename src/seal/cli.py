@@ -192,6 +192,12 @@ def _cmd_train_verifier(args) -> int:
                               image_size=args.image_size, holdout_tasks=holdout, holdout_inits=args.holdout_inits,
                               jitter=args.jitter, weight_decay=args.weight_decay, lr_schedule=args.lr_schedule,
                               seed=0 if args.seed is None else args.seed, save_every_s=args.save_every_min * 60.0)
+    if args.export_heldout:
+        from seal.train.verifier import export_heldout
+
+        counts = export_heldout([Path(d) for d in args.data.split(",") if d], Path(args.out), cfg)
+        print(json.dumps({"out": str(Path(args.out).resolve()), "cases": counts}))
+        return 0
     if args.score:
         from seal.train.verifier import score_runs
 
@@ -562,6 +568,10 @@ def _add_train(sub) -> None:
     ver.add_argument("--score", default=None, help="instead of training: score these checkpoint directories "
                      "(comma-separated) on the held-out splits this command's --data, --holdout-tasks, --holdout-inits "
                      "and --seed make, per split and per policy that made the cases (one JSON; --out caches images)")
+    ver.add_argument("--export-heldout", action="store_true",
+                     help="instead of training: write the held-out cases this command's --data, --holdout-tasks, "
+                     "--holdout-inits and --seed make as collections OUT/heldout_inits and OUT/heldout_tasks, for "
+                     "`seal bench verifier --data` (any verifier on the cases a learned one was held out on)")
     train.set_defaults(func=_cmd_train)
 
 

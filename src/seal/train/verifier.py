@@ -145,7 +145,7 @@ def _load_one(data: Path, size: int, cache_dir: Path | None, progress) -> tuple[
             tmp.replace(cache)
     context = [context_of(s, p, None if i < 0 else i)
                for s, p, i in zip(meta["subplan"], meta["plans"], meta["subplan_index"])]
-    init_key = [f"{t}:{s}:{i}" for t, s, i in zip(meta["task"], meta["init_source"], meta["init_index"])]
+    init_key = [init_key_of(t, s, i) for t, s, i in zip(meta["task"], meta["init_source"], meta["init_index"])]
     return CaseArrays(first, final, wrist, list(meta["subplan"]), context,
                       np.asarray(meta["label"], dtype=np.float32), list(meta["task"]), list(meta["kind"]),
                       init_key, list(meta["init_source"]), list(meta["policy"])), \
@@ -183,24 +183,56 @@ def split(arrays: CaseArrays, cfg: VerifierTrainConfig) -> dict[str, np.ndarray]
     """Indices of train / heldout_inits / heldout_tasks. Cases replayed from demonstrations
     (`seal verify from-demos`) are training data only: they never enter a held-out split (their
     starts and actions are not SEAL's), and those of held-out tasks are left out altogether."""
+    parts = np.array([part_of(t, k, s, cfg) for t, k, s in zip(arrays.task, arrays.init_key, arrays.source)])
     tasks = sorted(set(arrays.task))
     unknown = [t for t in cfg.holdout_tasks if t not in tasks]
     if unknown:
         raise InvalidInput(f"--holdout-tasks {unknown} not in the data; its tasks: {', '.join(tasks)}")
-    held_task = np.array([t in cfg.holdout_tasks for t in arrays.task])
-
-    def held_init(key: str) -> bool:
-        h = int.from_bytes(hashlib.sha1(f"{cfg.seed}:{key}".encode()).digest()[:8], "big") / 2**64
-        return h < cfg.holdout_inits
-
-    demo = np.array([s == ds.DEMO_SOURCE for s in arrays.source])
-    held_init_mask = np.array([held_init(k) for k in arrays.init_key]) & ~held_task & ~demo
-    train = ~held_task & ~held_init_mask
-    held_task &= ~demo
-    if not train.any():
+    if not (parts == "train").any():
         raise InvalidInput("nothing left to train on after the held-out splits")
-    return {"train": np.flatnonzero(train), "heldout_inits": np.flatnonzero(held_init_mask),
-            "heldout_tasks": np.flatnonzero(held_task)}
+    return {name: np.flatnonzero(parts == name) for name in ("train", "heldout_inits", "heldout_tasks")}
+
+
+def init_key_of(task: str, source: str, index: int) -> str:
+    """One init state of one task: the unit the held-out-inits split draws."""
+    return f"{task}:{source}:{index}"
+
+
+def part_of(task: str, init_key: str, source: str, cfg: VerifierTrainConfig) -> str | None:
+    """Which split one case falls in: train, heldout_tasks, heldout_inits, or None (a held-out
+    task's case replayed from a demonstration: in no split). A case's split depends on the case
+    alone (its task, its init state by hash, its source), never on the rest of the data."""
+    demo = source == ds.DEMO_SOURCE
+    if task in cfg.holdout_tasks:
+        return None if demo else "heldout_tasks"
+    h = int.from_bytes(hashlib.sha1(f"{cfg.seed}:{init_key}".encode()).digest()[:8], "big") / 2**64
+    return "heldout_inits" if h < cfg.holdout_inits and not demo else "train"
+
+
+def export_heldout(data: list[Path], out: Path, cfg: VerifierTrainConfig) -> dict[str, int]:
+    """Write the held-out cases of a training run's split as collections ``out/heldout_inits`` and
+    ``out/heldout_tasks`` (shards copied row for row), so `seal bench verifier --data` scores any
+    verifier, a VLM included, on exactly the cases a learned verifier was held out on."""
+    import pyarrow.parquet as pq
+
+    out = Path(out)
+    counts = {"heldout_inits": 0, "heldout_tasks": 0}
+    for d in data:
+        ds.read_info(d)
+        for path in ds.shard_paths(d):
+            rows = pq.read_table(path).to_pylist()
+            for part in counts:
+                kept = [r for r in rows if part_of(r["task"], init_key_of(r["task"], r["init_source"], r["init_index"]),
+                                                   r["init_source"], cfg) == part]
+                if kept:  # shard names are unique within a collection, not across them
+                    ds.write_shard(out / part, f"{Path(d).name}-{path.name}", kept)
+                    counts[part] += len(kept)
+    for part, n in counts.items():
+        ds.write_info(out / part, {"collection": {"settings": {
+            "what": f"{part} of `seal train verifier` (seed {cfg.seed}, --holdout-tasks "
+                    f"{','.join(cfg.holdout_tasks) or '-'}, --holdout-inits {cfg.holdout_inits:g})",
+            "from": [str(d) for d in data]}, "cases": n}})
+    return counts
 
 
 # ---- metrics ----------------------------------------------------------------------------------------------
