@@ -177,6 +177,22 @@ def test_crashing_trial_is_recorded_and_run_goes_on(tmp_path):
     assert rows[1].status == "ok" and rows[1].steps > 0
 
 
+def test_retry_errors_runs_error_rows_again_and_replaces_them(tmp_path):
+    db = tmp_path / "r.db"
+    options = RunOptions(out_dir=str(tmp_path / "runs"), video="none", max_steps=10)
+    run_eval(str(db), [MethodSpec(method="base")], ["libero_10"], [0], 2, options=options)
+    with sqlite3.connect(db) as con:  # trial 1 crashed (say, a worker timed out)
+        con.execute("UPDATE trials SET status = 'error', error = 'worker gave no answer' WHERE trial = 1")
+    again = run_eval(str(db), [MethodSpec(method="base")], ["libero_10"], [0], 2, options=options)
+    assert again.ran == 0 and again.already_done == 2  # without the flag an error is a result
+    retried = run_eval(str(db), [MethodSpec(method="base")], ["libero_10"], [0], 2, options=options,
+                       retry_errors=True)
+    assert retried.ran == 1 and retried.errors == 0
+    with sqlite3.connect(db) as con:
+        rows = con.execute("SELECT trial, status, error FROM trials ORDER BY trial").fetchall()
+    assert [(t, s) for t, s, _ in rows] == [(0, "ok"), (1, "ok")] and rows[1][2] == ""
+
+
 def test_resume_after_killing_the_run(tmp_path):
     db = tmp_path / "results.db"
     cmd = [sys.executable, "-m", "seal.cli", "eval", "--suite", "libero_10", "--tasks", "0", "--trials", "4",

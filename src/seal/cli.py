@@ -290,7 +290,8 @@ def _cmd_eval(args) -> int:
             bar.update(job, total=total, completed=ran, description=f"{row.suite}/{row.task}  {rates}{flag}")
 
         summary = run_eval(args.db, methods, suites, tasks, args.trials, options=options, backend=args.backend,
-                           workers=args.workers, address=args.address, on_row=on_row)
+                           workers=args.workers, address=args.address, on_row=on_row,
+                           retry_errors=args.retry_errors)
     print(json.dumps(summary.__dict__))
     for method, n in summary.verifier_errors.items():
         if n:
@@ -660,6 +661,9 @@ def _add_eval(sub) -> None:
     ev.add_argument("--video", default="failures", choices=["none", "failures", "all"])
     ev.add_argument("--no-grids", action="store_true")
     ev.add_argument("--max-steps", type=int, default=None, help="cap episode length (default: the suite's)")
+    ev.add_argument("--retry-errors", action="store_true",
+                    help="run again the trials of this command stored as errors (a crashed worker, a server that "
+                    "timed out); each error row stays until its new result replaces it")
     _add_method_options(ev)
     ev.set_defaults(func=_cmd_eval)
 

@@ -34,18 +34,19 @@ class EvalSummary:
 
 
 def plan_eval(store: ResultStore, methods: list[MethodSpec], suites: list[str], tasks: list[int] | None,
-              trials: int) -> tuple[list[TrialSpec], list[TrialSpec]]:
-    """(all trials of the command, the ones still to run)."""
+              trials: int, retry_errors: bool = False) -> tuple[list[TrialSpec], list[TrialSpec]]:
+    """(all trials of the command, the ones still to run; with ``retry_errors``, trials stored as
+    errors run again)."""
     every = expand(methods, suites, tasks, trials)
-    done = store.done_keys()
+    done = store.done_keys(errors=not retry_errors)
     return every, [t for t in every if t.key not in done]
 
 
 def run_eval(db: str, methods: list[MethodSpec], suites: list[str], tasks: list[int] | None, trials: int, *,
              options: RunOptions, backend: str = "local", workers: int = 1, address: str | None = None,
-             on_row: Callable[[TrialRow, int, int], None] | None = None) -> EvalSummary:
+             on_row: Callable[[TrialRow, int, int], None] | None = None, retry_errors: bool = False) -> EvalSummary:
     with ResultStore(db) as store:
-        every, todo = plan_eval(store, methods, suites, tasks, trials)
+        every, todo = plan_eval(store, methods, suites, tasks, trials, retry_errors)
         for m in methods:
             store.register_method(m.config_hash, m.label, m.canonical())
         summary = EvalSummary(db=str(db), planned=len(every), already_done=len(every) - len(todo))
@@ -57,7 +58,7 @@ def run_eval(db: str, methods: list[MethodSpec], suites: list[str], tasks: list[
                     raise VerifierUnavailable(
                         f"stopped the run: {row.fatal} (in {row.method} {row.suite}/{row.task} trial {row.trial}; "
                         f"{summary.ran} trial(s) of this command were stored, re-run the same command to resume)")
-                store.add(row)
+                store.add(row, replace_error=retry_errors)
                 summary.ran += 1
                 summary.errors += row.status == "error"
                 if on_row:

@@ -202,8 +202,10 @@ class ResultStore:
             self._db.execute("INSERT OR IGNORE INTO methods VALUES (?, ?, ?)",
                              (config_hash, method, json.dumps(config, sort_keys=True)))
 
-    def add(self, row: TrialRow) -> bool:
-        """Store a finished trial; returns False (and stores nothing) if it is already there."""
+    def add(self, row: TrialRow, *, replace_error: bool = False) -> bool:
+        """Store a finished trial; returns False (and stores nothing) if it is already there.
+        ``replace_error``: a stored error row of the same trial gives way to this one (in one
+        transaction, so the error stays on record until its replacement is stored)."""
         values = asdict(row)
         values["subplans_json"] = json.dumps(values.pop("subplans"))
         values["goal_status_json"] = json.dumps(values.pop("goal_status"))
@@ -211,14 +213,19 @@ class ResultStore:
         values["verifier_unavailable"] = int(bool(row.verifier_unavailable))
         values["finished_at"] = values["finished_at"] or time.time()
         with self._tx():
+            if replace_error:
+                self._db.execute("DELETE FROM trials WHERE config_hash = ? AND suite = ? AND task = ? AND trial = ? "
+                                 "AND status = 'error'", (row.config_hash, row.suite, row.task, row.trial))
             cur = self._db.execute(
                 f"INSERT OR IGNORE INTO trials ({', '.join(_COLUMNS)}) VALUES ({', '.join('?' * len(_COLUMNS))})",
                 [values[c] for c in _COLUMNS])
         return cur.rowcount == 1
 
     # ---- reading --------------------------------------------------------------------------
-    def done_keys(self) -> set[tuple[str, str, int, int]]:
-        return {tuple(r) for r in self._db.execute("SELECT config_hash, suite, task, trial FROM trials")}
+    def done_keys(self, *, errors: bool = True) -> set[tuple[str, str, int, int]]:
+        """Keys of the stored trials (``errors=False``: of those that did not end in an error)."""
+        sql = "SELECT config_hash, suite, task, trial FROM trials" + ("" if errors else " WHERE status != 'error'")
+        return {tuple(r) for r in self._db.execute(sql)}
 
     def rows(self, *, suite: str | None = None, method: str | None = None) -> list[TrialRow]:
         sql, args = f"SELECT {', '.join(_COLUMNS)} FROM trials", []
