@@ -107,3 +107,24 @@ def test_demonstrations_replay_into_labelled_verification_cases(recorded, tmp_pa
     assert (again["replayed"], again["already_done"]) == (0, 1)
     with pytest.raises(InvalidInput, match="fractions"):
         from_demos(recorded, tmp_path, DemoCaseOptions(fractions=(0.5,), after=5))
+
+    # near misses: the same replay with two branches per sub-plan
+    branched = tmp_path / "branched"
+    summary = from_demos(recorded, branched, DemoCaseOptions(fractions=(0.5, 1.0), after=5, branches=2))
+    assert summary["replay_failed"] == []  # restoring after each branch keeps the replay on its recording
+    with_branches = vds.read_cases(branched).to_pylist()
+    plain = {r["case_id"]: r for r in rows}
+    on_path = [r for r in with_branches if ":b" not in r["case_id"]]
+    assert sorted(r["case_id"] for r in on_path) == sorted(plain)
+    for r in on_path:  # the recording's own states, pixel for pixel
+        assert r["label"] == plain[r["case_id"]]["label"] and r["final_agent"] == plain[r["case_id"]]["final_agent"]
+    branches = [r for r in with_branches if ":b" in r["case_id"]]
+    assert 0 < len(branches) <= 2 * len(meta["subplans"])
+    assert not all(r["label"] for r in branches)  # 5 cm off the demonstration's hand: some miss
+    for r in branches:
+        twin = plain[next(k for k in plain if k.startswith(r["case_id"].rsplit(":b", 1)[0] + ":f"))]
+        assert r["first_agent"] == twin["first_agent"]  # judged against the sub-plan's own start
+    with pytest.raises(InvalidInput, match="branches"):
+        from_demos(recorded, branched, DemoCaseOptions(fractions=(0.5, 1.0), after=5))  # another setting
+    with pytest.raises(InvalidInput, match="branch-miss"):
+        DemoCaseOptions(branches=1, branch_miss=0.0).check()

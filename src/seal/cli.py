@@ -165,7 +165,8 @@ def _cmd_verify_from_demos(args) -> int:
         tasks = None if args.tasks is None else [int(t) for t in args.tasks.split(",")]
     except ValueError:
         raise InvalidInput(f"--tasks must be comma-separated task ids, got {args.tasks!r}") from None
-    opts = DemoCaseOptions(fractions=fractions, after=args.after, episodes_per_task=args.episodes_per_task)
+    opts = DemoCaseOptions(fractions=fractions, after=args.after, episodes_per_task=args.episodes_per_task,
+                           branches=args.branches, branch_from=args.branch_from, branch_miss=args.branch_miss)
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn()) as bar:
         job = bar.add_task("replaying demonstrations", total=None)
 
@@ -618,6 +619,12 @@ def _add_verify(sub) -> None:
                      help="end states judged per sub-plan, as fractions of the way from its start to its end")
     dem.add_argument("--after", type=int, default=10, help="one more end state this many frames past the "
                      "sub-plan's end (0: none)")
+    dem.add_argument("--branches", type=int, default=0, help="near misses: per sub-plan, this many replays that "
+                     "leave the recording with a horizontal offset and are judged past the sub-plan's end (default 0)")
+    dem.add_argument("--branch-from", type=float, default=0.5,
+                     help="where a branch leaves the recording, as a fraction of the sub-plan (default 0.5)")
+    dem.add_argument("--branch-miss", type=float, default=0.05,
+                     help="how far (metres) a branch's hand ends from the demonstration's (default 0.05)")
     dem.add_argument("--out", required=True, help="collection directory (re-run with the same one to continue)")
     dem.set_defaults(func=_cmd_verify_from_demos)
 

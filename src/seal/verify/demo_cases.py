@@ -22,6 +22,15 @@ How a demonstration becomes cases (``seal verify from-demos``):
   grounded to goal atoms and checked in that state. The label is the simulator's, not the
   fraction's: a can dropped in the basket early is a success wherever it is caught.
 
+- Near misses (``branches`` > 0): a demonstration's end states short of a sub-plan's end are
+  failures of one kind only, "not there yet". The failures a verifier most often calls successes
+  are the other kind: the object released beside its target, the gripper closed next to the
+  handle. A branch makes one: from ``branch_from`` of the way through the sub-plan, the recorded
+  actions are replayed with a constant horizontal offset, in a seeded direction, sized so that the
+  hand ends about ``branch_miss`` metres from where the demonstration put it, up to ``after``
+  frames past the sub-plan's end; that state is judged, and the world is restored to where the
+  branch left the recording. The oracle labels it like any other: a branch that still succeeds is a success.
+
 Rows have the columns of `seal.verify.dataset` with ``init_source="demo"``, ``init_index`` the
 dataset's episode index, ``init_seed`` its start seed, ``policy="scripted"``, ``knobs="demo"``,
 ``round=0``, ``candidate`` the end frame's position in the list, ``steps`` the frames since the
@@ -38,6 +47,7 @@ from typing import Callable
 import numpy as np
 
 from seal.errors import InvalidInput, SimulationError
+from seal.sim.control import METRES_PER_ACTION
 from seal.verify import dataset as ds
 from seal.verify.base import VerifyRequest
 from seal.verify.oracle import OracleVerifier
@@ -50,15 +60,34 @@ class DemoCaseOptions:
     fractions: tuple[float, ...] = (0.3, 0.6, 0.8, 0.9, 1.0)  # of the way from a sub-plan's start to its end
     after: int = 10  # one more end state this many frames past the sub-plan's end (0: none)
     episodes_per_task: int | None = None  # the first N episodes of each task (default: all)
+    branches: int = 0  # near-miss branches per sub-plan (module docstring)
+    branch_from: float = 0.5  # where a branch leaves the recording, as a fraction of the sub-plan
+    branch_miss: float = 0.05  # metres between where a branch's hand ends and where the demonstration's did
 
     def settings(self) -> dict:
-        return {"source": SOURCE, "fractions": list(self.fractions), "after": self.after}
+        out = {"source": SOURCE, "fractions": list(self.fractions), "after": self.after}
+        if self.branches:  # collections made before branches existed keep their settings
+            out |= {"branches": self.branches, "branch_from": self.branch_from, "branch_miss": self.branch_miss}
+        return out
 
     def check(self) -> None:
         if not self.fractions or any(not 0.0 < f <= 1.0 for f in self.fractions):
             raise InvalidInput(f"--fractions must be numbers in (0, 1], got {list(self.fractions)}")
         if self.after < 0:
             raise InvalidInput(f"--after must be >= 0 frames, got {self.after}")
+        if self.branches < 0 or not 0.0 <= self.branch_from < 1.0 or not 0.0 < self.branch_miss <= 0.3:
+            raise InvalidInput(f"--branches must be >= 0, --branch-from in [0, 1) and --branch-miss in (0, 0.3] metres; "
+                               f"got {self.branches}, {self.branch_from}, {self.branch_miss}")
+
+
+def branch_offsets(episode: int, segment: int, frames: int, opts: DemoCaseOptions) -> list[np.ndarray]:
+    """The (dx, dy) action offsets of one sub-plan's branches, each added to every one of its
+    ``frames`` actions: evenly spread directions, turned by a seeded angle so that episodes do not
+    all miss the same way, each as large as ends the hand ``branch_miss`` away."""
+    turn = np.random.default_rng([episode, segment]).uniform(0, 2 * np.pi)
+    angles = turn + 2 * np.pi * np.arange(opts.branches) / max(opts.branches, 1)
+    size = min(1.0, opts.branch_miss / (METRES_PER_ACTION * max(frames, 1)))
+    return [size * np.array([np.cos(a), np.sin(a)]) for a in angles]
 
 
 def end_frames(start: int, end: int, length: int, opts: DemoCaseOptions) -> list[int]:
@@ -105,29 +134,48 @@ def replay_cases(world, meta: dict, actions: np.ndarray, base: dict, opts: DemoC
         starts.add(start)
         for slot, f in enumerate(end_frames(start, end, length, opts)):
             wanted.setdefault(f, []).append((i, text, start, slot))
+    branch_at: dict[int, list[tuple[int, str, int, int]]] = {}  # frame -> [(segment index, text, start, stop)]
+    if opts.branches:
+        for i, (text, start, end) in enumerate(segments):
+            at = start + int(opts.branch_from * (end - start))
+            branch_at.setdefault(at, []).append((i, text, start, min(end + opts.after, length)))
     first_views: dict[int, np.ndarray] = {}
     rows: list[dict] = []
+
+    def judge(obs, i: int, text: str, start: int, case_id: str, slot: int, steps: int) -> None:
+        nonlocal objects
+        if objects is None:
+            scene = world.scene_state()
+            objects = sorted(set(scene.bodies) | set(scene.sites))
+        req = VerifyRequest(subplan=text, instruction=base["instruction"], plans=plans, index=i,
+                            first_agent=first_views[start], final_agent=obs.agent, final_wrist=obs.wrist,
+                            task=base["task"])
+        req.scene = world.scene_state(oracle.atoms_needed(req, objects))
+        verdict = oracle.judge(req)
+        if verdict.success is not None:
+            rows.append(ds.case_row(base, req, verdict, case_id=case_id, subplan_number=i + 1, round=0,
+                                    candidate=slot, steps=steps, ended_by=SOURCE))
+
+    prefix = f"{base['task']}:{SOURCE}:{base['init_index']}"
     for t in range(length + 1):
-        if t in starts or t in wanted:
-            obs = world.observe(images=True)
-            if t in starts:
-                first_views[t] = obs.agent
-            if objects is None:
-                scene = world.scene_state()
-                objects = sorted(set(scene.bodies) | set(scene.sites))
-            for i, text, start, slot in wanted.get(t, ()):
-                req = VerifyRequest(subplan=text, instruction=base["instruction"], plans=plans, index=i,
-                                    first_agent=first_views[start], final_agent=obs.agent, final_wrist=obs.wrist,
-                                    task=base["task"])
-                atoms = oracle.atoms_needed(req, objects)
-                req.scene = world.scene_state(atoms)
-                verdict = oracle.judge(req)
-                if verdict.success is None:
-                    continue
-                rows.append(ds.case_row(base, req, verdict,
-                                        case_id=f"{base['task']}:{SOURCE}:{base['init_index']}:s{i + 1}:f{t}",
-                                        subplan_number=i + 1, round=0, candidate=slot, steps=t - start,
-                                        ended_by=SOURCE))
+        obs = world.observe(images=True) if t in starts or t in wanted else None  # one render per frame
+        if t in starts:
+            first_views[t] = obs.agent
+        for i, text, start, slot in wanted.get(t, ()):
+            judge(obs, i, text, start, f"{prefix}:s{i + 1}:f{t}", slot, t - start)
+        for i, text, start, stop in branch_at.get(t, ()):
+            if stop <= t:
+                continue
+            snap = world.snapshot()
+            for j, (dx, dy) in enumerate(branch_offsets(base["init_index"], i, stop - t, opts)):
+                shifted = actions[t:stop].copy()
+                shifted[:, 0] += dx
+                shifted[:, 1] += dy
+                for a in np.clip(shifted, -1.0, 1.0):
+                    world.step(a)
+                judge(world.observe(images=True), i, text, start, f"{prefix}:s{i + 1}:b{j}", len(opts.fractions) + 1 + j,
+                      stop - start)
+                world.restore(snap)
         if t < length:
             world.step(actions[t])
     return rows, bool(world.success())
@@ -155,7 +203,7 @@ def from_demos(dataset: Path, out: Path, opts: DemoCaseOptions, *, tasks: list[i
     settings = {**opts.settings(), "dataset": str(Path(dataset).resolve())}
     if (out / "info.json").is_file():
         old = ds.read_info(out).get("collection", {}).get("settings", {})
-        changed = sorted(k for k in ("source", "fractions", "after", "dataset") if old.get(k) != settings[k])
+        changed = sorted(k for k in {*settings, *old} - {"episodes_per_task"} if old.get(k) != settings.get(k))
         if changed:
             raise InvalidInput(f"{out} holds cases made with other settings ({', '.join(changed)}); "
                                "use another --out, or the same settings to continue")

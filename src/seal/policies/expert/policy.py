@@ -21,11 +21,8 @@ from seal.sim.lexicon import category
 from seal.sim.goals import GoalAtom
 from seal.sim.observation import Observation
 from seal.sim.scene import SceneState
+from seal.sim.control import METRES_PER_ACTION, RADIANS_PER_ACTION
 
-# How the controller moves per step per unit of action (measured: ~6 mm at 0.5), used to
-# extrapolate the end effector when predicting a whole chunk.
-METRES_PER_ACTION = 0.012
-RADIANS_PER_ACTION = 0.09
 
 
 @dataclass(frozen=True)
