@@ -171,8 +171,7 @@ def replay_cases(world, meta: dict, actions: np.ndarray, base: dict, opts: DemoC
                 shifted = actions[t:stop].copy()
                 shifted[:, 0] += dx
                 shifted[:, 1] += dy
-                for a in np.clip(shifted, -1.0, 1.0):
-                    world.step(a)
+                world.step_chunk(np.clip(shifted, -1.0, 1.0))
                 judge(world.observe(images=True), i, text, start, f"{prefix}:s{i + 1}:b{j}", len(opts.fractions) + 1 + j,
                       stop - start)
                 world.restore(snap)
