@@ -71,8 +71,8 @@ def run(args) -> dict:
     out = Path(args.out) if getattr(args, "out", None) else DEFAULT_OUT
     out.mkdir(parents=True, exist_ok=True)
     policy = getattr(args, "policy", None) or "scripted"
-    knobs = "misaligned" if policy == "scripted" else None  # the scripted expert's setting only
-    common = {"k": args.k, "knobs": knobs or "misaligned", "policy": policy}
+    knobs = "misaligned" if policy == "scripted" else None  # the scripted expert's setting (recorded for it only)
+    common = {"k": args.k, "knobs": "misaligned", "policy": policy}
     cells = {"base": MethodSpec(method="base", **common)}
     for fp in fps:
         for fn in fns:
