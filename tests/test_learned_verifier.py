@@ -12,6 +12,7 @@ import pytest
 
 from _verifier_cases import write_cases
 
+from seal.benchmarks.verifier import THRESHOLDS, operating_points, pick_threshold
 from seal.cli import main
 from seal.errors import InvalidInput
 from seal.steer.method import MethodSpec
@@ -220,7 +221,8 @@ def test_exported_heldout_cases_score_as_the_training_run_scored_them(run, data,
     assert main(["train", "verifier", "--data", str(data), "--holdout-tasks", "libero_10/1", "--holdout-inits", "0.25",
                  "--export-heldout", "--out", str(dest)]) == 0
     counts = json.loads(capsys.readouterr().out)["cases"]
-    assert counts == {"heldout_inits": 30, "heldout_tasks": 120} == {k: summary["split"][k] for k in counts}
+    assert counts == {"train": summary["split"]["train"], "heldout_inits": 30, "heldout_tasks": 120} \
+        == {k: summary["split"][k] for k in counts}
     arrays, _ = load_arrays(data, 32)
     parts = split(arrays, CFG)
     exported = ds.read_cases(dest / "heldout_inits", columns=["case_id"]).column("case_id").to_pylist()
@@ -230,6 +232,34 @@ def test_exported_heldout_cases_score_as_the_training_run_scored_them(run, data,
     assert main(["bench", "verifier", "--verifier", f"learned:{out}", "--data", str(dest / "heldout_inits")]) == 0
     result = json.loads(capsys.readouterr().out)
     assert result["cases"] == 30 and result["accuracy"] == pytest.approx(summary["heldout_inits"]["accuracy"])
+    # a threshold picked on one part and applied with --threshold gives what the pick promised on it
+    assert main(["bench", "verifier", "--verifier", f"learned:{out}", "--data", str(dest / "heldout_tasks"),
+                 "--min-precision", "0.5"]) == 0
+    picked = json.loads(capsys.readouterr().out)
+    assert [p["threshold"] for p in picked["operating_points"]] == list(THRESHOLDS) and picked["threshold"] == 0.5
+    cut = picked["calibrated"]["threshold"]
+    assert cut is not None and picked["calibrated"]["precision"] >= 0.5
+    assert main(["bench", "verifier", "--verifier", f"learned:{out}", "--data", str(dest / "heldout_tasks"),
+                 "--threshold", str(cut)]) == 0
+    strict = json.loads(capsys.readouterr().out)
+    assert strict["threshold"] == cut and strict["recall"] == picked["calibrated"]["recall"]
+    assert strict["precision"] == picked["calibrated"]["precision"]
+
+
+def test_the_threshold_pick_takes_the_most_recall_that_reaches_the_precision(capsys):
+    labels, scores = [True, True, False, True, False], [0.9, 0.8, 0.7, 0.3, 0.2]
+    assert pick_threshold(labels, scores, 0.7)["threshold"] == 0.3  # 3 of the 4 passed are right
+    assert pick_threshold(labels, scores, 0.7)["recall"] == 1.0
+    assert pick_threshold(labels, scores, 0.9) == {"min_precision": 0.9, "threshold": 0.8, "cases": 5, "accuracy": 0.8,
+                                                   "precision": 1.0, "recall": 0.6667, "fp_rate": 0.0}
+    assert pick_threshold([False, True], [0.9, 0.5], 0.9)["threshold"] is None  # the top score is a failure
+    with pytest.raises(InvalidInput, match="min-precision"):
+        pick_threshold(labels, scores, 0.0)
+    assert main(["bench", "verifier", "--verifier", "oracle", "--threshold", "0.5", "--data", "unused"]) == 2
+    assert "--threshold applies to --verifier learned" in capsys.readouterr().err
+    points = operating_points(labels, scores, thresholds=(0.5, 0.85))
+    assert points[0]["precision"] == 0.6667 and points[1] == {"threshold": 0.85, "accuracy": 0.6, "precision": 1.0,
+                                                              "recall": 0.3333, "fp_rate": 0.0}
 
 
 def test_several_collections_train_as_one_and_a_repeated_one_is_refused(tmp_path):

@@ -572,8 +572,9 @@ def _add_train(sub) -> None:
                      "and --seed make, per split and per policy that made the cases (one JSON; --out caches images)")
     ver.add_argument("--export-heldout", action="store_true",
                      help="instead of training: write the held-out cases this command's --data, --holdout-tasks, "
-                     "--holdout-inits and --seed make as collections OUT/heldout_inits and OUT/heldout_tasks, for "
-                     "`seal bench verifier --data` (any verifier on the cases a learned one was held out on)")
+                     "--holdout-inits and --seed make as collections OUT/heldout_inits and OUT/heldout_tasks (and "
+                     "the rest as OUT/train), for `seal bench verifier --data` (any verifier on the cases a learned "
+                     "one was held out on)")
     train.set_defaults(func=_cmd_train)
 
 
@@ -785,6 +786,11 @@ def _add_bench(sub) -> None:
     vb.add_argument("--limit", type=int, default=None, help="verifier: score at most N cases (a fixed shuffle)")
     vb.add_argument("--false-positive", type=float, default=None, help="verifier noisy: false-positive rate")
     vb.add_argument("--false-negative", type=float, default=None, help="verifier noisy: false-negative rate")
+    vb.add_argument("--threshold", type=float, default=None,
+                    help="verifier learned: success when P(success) >= this (default: the checkpoint's)")
+    vb.add_argument("--min-precision", type=float, default=None,
+                    help="verifier learned: also report the lowest threshold reaching this precision on --data "
+                         "(pick it on a calibration set, report with --threshold on another)")
     vb.add_argument("--cache-dir", default=None,
                     help="verifier openai/gemini: answer cache (default ~/.cache/seal/verifier-answers)")
     vb.add_argument("--fp", default=None, help="verifier-sweep: false-positive rates (default 0,0.1,0.2,0.4)")

@@ -15,6 +15,12 @@ Positive = success. An unknown verdict counts as a predicted failure (SEAL never
 it) and is also counted apart. VLM answers are cached on disk (``--cache-dir``, keyed by
 backend, model, settings, prompt and the images' pixels), so a re-run pays nothing:
 ``cost_usd`` is what this run spent, ``cost_usd_uncached`` what the answers cost when first paid.
+
+A verifier that gives a confidence (``Verdict.score``: the learned one's P(success)) also gets
+``operating_points``: the same figures at other thresholds, so one run shows what a stricter
+verifier would trade. ``--min-precision P`` picks the lowest threshold whose precision on these
+cases reaches P (the most recall at that precision). Pick it on a calibration set that shares no
+start with the set you report on, then score the reported set with ``--threshold``.
 """
 
 from __future__ import annotations
@@ -32,6 +38,7 @@ from seal.verify.dataset import binary_metrics
 DEFAULT_CACHE = Path.home() / ".cache" / "seal" / "verifier-answers"
 HELDOUT_DIR = Path("runs") / "verifier" / "heldout"
 HELDOUT_PER_TASK = 20
+THRESHOLDS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 0.98)
 
 
 def _build(args):
@@ -45,6 +52,10 @@ def _build(args):
     fn = getattr(args, "false_negative", None)
     if name == "noisy" and fp is None and fn is None:
         raise InvalidInput("--verifier noisy needs --false-positive and/or --false-negative rates")
+    if getattr(args, "threshold", None) is not None:
+        if name != "learned":
+            raise InvalidInput(f"--threshold applies to --verifier learned (a P(success) cut), not {name!r}")
+        opts["threshold"] = args.threshold
     return make_verifier(name, model=model, base_url=getattr(args, "base_url", None), false_positive=fp or 0.0,
                          false_negative=fn or 0.0, seed=0, **opts)
 
@@ -82,9 +93,34 @@ async def _judge_all(verifier, requests, k: int):
     return verdicts, wall
 
 
-def score(verifier, data: Path, *, k: int = 10, limit: int | None = None, errors_png: Path | None = None) -> dict:
+def operating_points(labels, scores, thresholds=THRESHOLDS) -> list[dict]:
+    """The figures a verifier with confidences ``scores`` would get at each threshold."""
+    y, s = np.asarray(labels, dtype=bool), np.asarray(scores, dtype=float)
+    points = []
+    for t in thresholds:
+        m = binary_metrics(y, s >= t)
+        points.append({"threshold": t, **{key: m[key] for key in ("accuracy", "precision", "recall", "fp_rate")}})
+    return points
+
+
+def pick_threshold(labels, scores, min_precision: float) -> dict:
+    """The lowest threshold (so the most recall) at which precision reaches ``min_precision``;
+    ``threshold`` None when no threshold that passes anything reaches it."""
+    if not 0.0 < min_precision <= 1.0:
+        raise InvalidInput(f"--min-precision must be in (0, 1], got {min_precision}")
+    y, s = np.asarray(labels, dtype=bool), np.asarray(scores, dtype=float)
+    for t in np.unique(s):  # candidate cuts: the scores themselves, ascending
+        m = binary_metrics(y, s >= t)
+        if m["precision"] is not None and m["precision"] >= min_precision:
+            return {"min_precision": min_precision, "threshold": round(float(t), 6), "cases": len(y),
+                    **{key: m[key] for key in ("accuracy", "precision", "recall", "fp_rate")}}
+    return {"min_precision": min_precision, "threshold": None, "cases": len(y)}
+
+
+def score(verifier, data: Path, *, k: int = 10, limit: int | None = None, errors_png: Path | None = None,
+          min_precision: float | None = None) -> dict:
     """Metrics of ``verifier`` on the cases under ``data``; with ``errors_png``, a contact sheet of
-    the cases it got wrong (`error_sheet`)."""
+    the cases it got wrong (`error_sheet`); with ``min_precision``, the threshold that reaches it."""
     cases = list(ds.iter_cases(data, limit=limit))
     if not cases:
         raise InvalidInput(f"{data} holds no cases")
@@ -111,6 +147,14 @@ def score(verifier, data: Path, *, k: int = 10, limit: int | None = None, errors
     out["cached"] = sum(bool(v.extra.get("cached")) for v in verdicts)
     out["cost_usd_uncached"] = round(out["cost_usd"] + sum(v.extra.get("original_cost_usd", 0.0) for v in verdicts), 6)
     out["errors"] = sum(bool(v.extra.get("error")) for v in verdicts)
+    scores = [v.score for v in verdicts]
+    if all(sc is not None for sc in scores) and any(0.0 < sc < 1.0 for sc in scores):  # not a yes/no verifier
+        out["threshold"] = getattr(verifier, "threshold", None)
+        out["operating_points"] = operating_points(labels, scores)
+        if min_precision is not None:
+            out["calibrated"] = pick_threshold(labels, scores, min_precision)
+    elif min_precision is not None:
+        raise InvalidInput(f"--min-precision needs a verifier that gives a confidence (learned); {verifier.name} does not")
     if errors_png is not None:
         wrong = [i for i, (label, verdict) in enumerate(zip(labels, verdicts)) if verdict.success is not label]
         out["error_sheet"] = error_sheet([(requests[i], cases[i], verdicts[i]) for i in wrong], errors_png)
@@ -162,6 +206,17 @@ def markdown(result: dict) -> str:
     text += head + row("all", result)
     for kind, m in result["per_kind"].items():
         text += row(kind, m)
+    if result.get("operating_points"):
+        text += (f"\nAt other thresholds (this run: {result['threshold']}):\n\n"
+                 "| threshold | accuracy | precision | recall | FP rate |\n| ---: | ---: | ---: | ---: | ---: |\n")
+        for p in result["operating_points"]:
+            cells = ["-" if p[key] is None else f"{p[key]:.3f}" for key in ("accuracy", "precision", "recall", "fp_rate")]
+            text += f"| {p['threshold']:g} | " + " | ".join(cells) + " |\n"
+    if result.get("calibrated"):
+        c = result["calibrated"]
+        text += (f"\nLowest threshold with precision >= {c['min_precision']:g} on these cases: "
+                 + (f"**{c['threshold']:.4f}** (accuracy {c['accuracy']:.3f}, recall {c['recall']:.3f})\n"
+                    if c["threshold"] is not None else "none reaches it\n"))
     return text
 
 
@@ -170,7 +225,8 @@ def run(args) -> dict:
     data = Path(args.data) if getattr(args, "data", None) else heldout_set(args)
     out = Path(args.out) if getattr(args, "out", None) else None
     result = score(verifier, data, k=args.k, limit=getattr(args, "limit", None),
-                   errors_png=out.with_name(out.stem + "_errors.png") if out else None)
+                   errors_png=out.with_name(out.stem + "_errors.png") if out else None,
+                   min_precision=getattr(args, "min_precision", None))
     if not getattr(args, "data", None):
         result["heldout"] = ("collected on the spot: fresh init states from the fresh-heldout seed range "
                              "(task_seed + 200000 + j), used by no training collection and no shipped init state")

@@ -210,13 +210,15 @@ def part_of(task: str, init_key: str, source: str, cfg: VerifierTrainConfig) -> 
 
 
 def export_heldout(data: list[Path], out: Path, cfg: VerifierTrainConfig) -> dict[str, int]:
-    """Write the held-out cases of a training run's split as collections ``out/heldout_inits`` and
-    ``out/heldout_tasks`` (shards copied row for row), so `seal bench verifier --data` scores any
-    verifier, a VLM included, on exactly the cases a learned verifier was held out on."""
+    """Write a training run's split as collections ``out/heldout_inits``, ``out/heldout_tasks`` and
+    ``out/train`` (shards copied row for row), so `seal bench verifier --data` scores any verifier, a
+    VLM included, on exactly the cases a learned verifier was held out on. The train part of a
+    collection the run did not train on (another policy's cases) is a calibration set: it shares no
+    start and no task with the held-out parts, so a threshold picked on it is not tuned on them."""
     import pyarrow.parquet as pq
 
     out = Path(out)
-    counts = {"heldout_inits": 0, "heldout_tasks": 0}
+    counts = {"train": 0, "heldout_inits": 0, "heldout_tasks": 0}
     for d in data:
         ds.read_info(d)
         for path in ds.shard_paths(d):
