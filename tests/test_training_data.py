@@ -128,3 +128,20 @@ def test_demonstrations_replay_into_labelled_verification_cases(recorded, tmp_pa
         from_demos(recorded, branched, DemoCaseOptions(fractions=(0.5, 1.0), after=5))  # another setting
     with pytest.raises(InvalidInput, match="branch-miss"):
         DemoCaseOptions(branches=1, branch_miss=0.0).check()
+
+    # idle-gripper branches: the hand moves as recorded, the gripper keeps its first command
+    idle = tmp_path / "idle"
+    summary = from_demos(recorded, idle, DemoCaseOptions(fractions=(0.5, 1.0), after=5, grip_branch=True))
+    assert summary["replay_failed"] == []
+    with_idle = vds.read_cases(idle).to_pylist()
+    assert sorted(r["case_id"] for r in with_idle if not r["case_id"].endswith(":g")) == sorted(plain)
+    grips = [r for r in with_idle if r["case_id"].endswith(":g")]
+    assert 0 < len(grips) <= len(meta["subplans"])
+    picks = [r for r in grips if r["subplan"].startswith("pick")]
+    assert picks and not any(r["label"] for r in picks)  # an empty hand lifted over the object picks nothing
+    alone = from_demos(recorded, tmp_path / "alone", DemoCaseOptions(fractions=(0.5, 1.0), after=5, grip_branch=True,
+                                                                       only_branches=True))
+    assert alone["cases"] == len(grips) and [r["final_agent"] for r in vds.read_cases(tmp_path / "alone").to_pylist()] \
+        == [r["final_agent"] for r in grips]  # the same branches, pixel for pixel, without the recording's states
+    with pytest.raises(InvalidInput, match="only-branches"):
+        DemoCaseOptions(only_branches=True).check()

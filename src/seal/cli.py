@@ -166,7 +166,8 @@ def _cmd_verify_from_demos(args) -> int:
     except ValueError:
         raise InvalidInput(f"--tasks must be comma-separated task ids, got {args.tasks!r}") from None
     opts = DemoCaseOptions(fractions=fractions, after=args.after, episodes_per_task=args.episodes_per_task,
-                           branches=args.branches, branch_from=args.branch_from, branch_miss=args.branch_miss)
+                           branches=args.branches, branch_from=args.branch_from, branch_miss=args.branch_miss,
+                           grip_branch=args.grip_branch, only_branches=args.only_branches)
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn()) as bar:
         job = bar.add_task("replaying demonstrations", total=None)
 
@@ -626,6 +627,12 @@ def _add_verify(sub) -> None:
                      help="where a branch leaves the recording, as a fraction of the sub-plan (default 0.5)")
     dem.add_argument("--branch-miss", type=float, default=0.05,
                      help="how far (metres) a branch's hand ends from the demonstration's (default 0.05)")
+    dem.add_argument("--grip-branch", action="store_true",
+                     help="near misses: per sub-plan, one more replay from its start with the gripper held as it "
+                     "began (a pick lifts an empty hand, a place never lets go), judged past the sub-plan's end")
+    dem.add_argument("--only-branches", action="store_true",
+                     help="write the branch cases alone, not the recording's own states (to add near misses to a "
+                     "collection of the same demonstrations made without them)")
     dem.add_argument("--out", required=True, help="collection directory (re-run with the same one to continue)")
     dem.set_defaults(func=_cmd_verify_from_demos)
 

@@ -30,6 +30,11 @@ How a demonstration becomes cases (``seal verify from-demos``):
   hand ends about ``branch_miss`` metres from where the demonstration put it, up to ``after``
   frames past the sub-plan's end; that state is judged, and the world is restored to where the
   branch left the recording. The oracle labels it like any other: a branch that still succeeds is a success.
+- Idle-gripper branches (``grip_branch``): the other near miss a learned policy makes is a hand
+  that goes everywhere it should while its gripper does nothing: it lifts an empty hand over the
+  can, or holds the box above the basket and never lets go. This branch replays a sub-plan from
+  its start, up to ``after`` frames past its end, with every gripper command replaced by the
+  sub-plan's first one (case ids end ``:g``).
 
 Rows have the columns of `seal.verify.dataset` with ``init_source="demo"``, ``init_index`` the
 dataset's episode index, ``init_seed`` its start seed, ``policy="scripted"``, ``knobs="demo"``,
@@ -63,11 +68,17 @@ class DemoCaseOptions:
     branches: int = 0  # near-miss branches per sub-plan (module docstring)
     branch_from: float = 0.5  # where a branch leaves the recording, as a fraction of the sub-plan
     branch_miss: float = 0.05  # metres between where a branch's hand ends and where the demonstration's did
+    grip_branch: bool = False  # one more branch per sub-plan: the gripper held as it began (module docstring)
+    only_branches: bool = False  # write the branch cases alone (near misses for a collection made without them)
 
     def settings(self) -> dict:
         out = {"source": SOURCE, "fractions": list(self.fractions), "after": self.after}
         if self.branches:  # collections made before branches existed keep their settings
             out |= {"branches": self.branches, "branch_from": self.branch_from, "branch_miss": self.branch_miss}
+        if self.grip_branch:
+            out["grip_branch"] = True
+        if self.only_branches:
+            out["only_branches"] = True
         return out
 
     def check(self) -> None:
@@ -78,6 +89,8 @@ class DemoCaseOptions:
         if self.branches < 0 or not 0.0 <= self.branch_from < 1.0 or not 0.0 < self.branch_miss <= 0.3:
             raise InvalidInput(f"--branches must be >= 0, --branch-from in [0, 1) and --branch-miss in (0, 0.3] metres; "
                                f"got {self.branches}, {self.branch_from}, {self.branch_miss}")
+        if self.only_branches and not (self.branches or self.grip_branch):
+            raise InvalidInput("--only-branches needs --branches N or --grip-branch (it writes their cases alone)")
 
 
 def branch_offsets(episode: int, segment: int, frames: int, opts: DemoCaseOptions) -> list[np.ndarray]:
@@ -132,13 +145,17 @@ def replay_cases(world, meta: dict, actions: np.ndarray, base: dict, opts: DemoC
     starts: set[int] = set()
     for i, (text, start, end) in enumerate(segments):
         starts.add(start)
-        for slot, f in enumerate(end_frames(start, end, length, opts)):
+        for slot, f in enumerate([] if opts.only_branches else end_frames(start, end, length, opts)):
             wanted.setdefault(f, []).append((i, text, start, slot))
     branch_at: dict[int, list[tuple[int, str, int, int]]] = {}  # frame -> [(segment index, text, start, stop)]
     if opts.branches:
         for i, (text, start, end) in enumerate(segments):
             at = start + int(opts.branch_from * (end - start))
             branch_at.setdefault(at, []).append((i, text, start, min(end + opts.after, length)))
+    grip_at: dict[int, list[tuple[int, str, int]]] = {}  # sub-plan start -> [(segment index, text, stop)]
+    if opts.grip_branch:
+        for i, (text, start, end) in enumerate(segments):
+            grip_at.setdefault(start, []).append((i, text, min(end + opts.after, length)))
     first_views: dict[int, np.ndarray] = {}
     rows: list[dict] = []
 
@@ -175,6 +192,14 @@ def replay_cases(world, meta: dict, actions: np.ndarray, base: dict, opts: DemoC
                 judge(world.observe(images=True), i, text, start, f"{prefix}:s{i + 1}:b{j}", len(opts.fractions) + 1 + j,
                       stop - start)
                 world.restore(snap)
+        for i, text, stop in grip_at.get(t, ()):
+            snap = world.snapshot()
+            idle = actions[t:stop].copy()
+            idle[:, -1] = actions[t, -1]  # the gripper keeps the sub-plan's first command throughout
+            world.step_chunk(idle)
+            judge(world.observe(images=True), i, text, t, f"{prefix}:s{i + 1}:g", len(opts.fractions) + 1 + opts.branches,
+                  stop - t)
+            world.restore(snap)
         if t < length:
             world.step(actions[t])
     return rows, bool(world.success())
