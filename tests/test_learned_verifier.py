@@ -101,6 +101,20 @@ def test_resuming_gives_the_weights_of_an_uninterrupted_run(data, tmp_path):
         train_verifier(data, tmp_path / "resumed", VerifierTrainConfig(**{**cfg.__dict__, "lr": 0.1}))
 
 
+def test_another_train_seed_keeps_the_split_and_changes_the_weights(data, tmp_path):
+    cfg = VerifierTrainConfig(steps=3, batch_size=8, image_size=32, holdout_inits=0.25)
+    first = train_verifier(data, tmp_path / "s0", cfg)
+    other = train_verifier(data, tmp_path / "s1", VerifierTrainConfig(**{**cfg.__dict__, "train_seed": 1}))
+    assert first["split"] == other["split"]  # the same held-out cases: the two runs compare on them
+    a, _, _ = load_checkpoint(tmp_path / "s0")
+    b, _, _ = load_checkpoint(tmp_path / "s1")
+    assert not all(torch.equal(x, y) for x, y in zip(a.state_dict().values(), b.state_dict().values()))
+    # train_seed None is the old behaviour, so runs from before it existed stay resumable
+    assert "train_seed" not in cfg.identity() and VerifierTrainConfig(train_seed=1).identity()["train_seed"] == 1
+    with pytest.raises(InvalidInput, match="other settings"):
+        train_verifier(data, tmp_path / "s1", cfg)
+
+
 def test_cosine_schedule_decays_to_zero_and_fixes_the_run_length(data, tmp_path):
     cfg = VerifierTrainConfig(steps=4, batch_size=8, image_size=32, holdout_inits=0.25, lr=0.01, lr_schedule="cosine")
     assert [round(cfg.lr_at(s), 6) for s in (0, 2, 4)] == [0.01, 0.005, 0.0]

@@ -193,7 +193,8 @@ def _cmd_train_verifier(args) -> int:
     cfg = VerifierTrainConfig(steps=args.steps or 2000, batch_size=args.batch_size or 64, lr=args.lr or 1e-3,
                               image_size=args.image_size, holdout_tasks=holdout, holdout_inits=args.holdout_inits,
                               jitter=args.jitter, weight_decay=args.weight_decay, lr_schedule=args.lr_schedule,
-                              seed=0 if args.seed is None else args.seed, save_every_s=args.save_every_min * 60.0)
+                              seed=0 if args.seed is None else args.seed, train_seed=args.train_seed,
+                              save_every_s=args.save_every_min * 60.0)
     if args.export_heldout:
         from seal.train.verifier import export_heldout
 
@@ -567,6 +568,9 @@ def _add_train(sub) -> None:
     ver.add_argument("--weight-decay", type=float, default=1e-4, help="AdamW weight decay (default 1e-4)")
     ver.add_argument("--lr-schedule", default="constant", choices=["constant", "cosine"],
                      help="learning rate over the run: constant, or cosine decay to 0 at --steps (default constant)")
+    ver.add_argument("--train-seed", type=int, default=None,
+                     help="seed of the initial weights, batches and augmentation (default: --seed, which also draws "
+                     "the held-out split); another --train-seed on the same split measures run-to-run spread")
     ver.add_argument("--save-every-min", type=float, default=5.0, help="minutes between checkpoints")
     ver.add_argument("--score", default=None, help="instead of training: score these checkpoint directories "
                      "(comma-separated) on the held-out splits this command's --data, --holdout-tasks, --holdout-inits "

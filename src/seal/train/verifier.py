@@ -56,7 +56,10 @@ class VerifierTrainConfig:
     image_size: int = 96
     holdout_tasks: tuple[str, ...] = ()
     holdout_inits: float = 0.2  # fraction of each remaining task's init states held out
-    seed: int = 0
+    seed: int = 0  # the held-out split (and, without train_seed, everything else)
+    # the initial weights, batches and augmentation; None: ``seed``. Another train_seed on the same
+    # split measures how much two runs of one recipe differ.
+    train_seed: int | None = None
     shift: int = 4  # augmentation: random translation in pixels (at image_size)
     # augmentation: per-case brightness and contrast factors in [1 - jitter, 1 + jitter], one pair for
     # both front views (their difference is the evidence) and one for the wrist view
@@ -76,8 +79,15 @@ class VerifierTrainConfig:
             d.pop(k)
         if self.lr_schedule == "constant":  # runs from before the schedule existed stay resumable
             d.pop("lr_schedule")
+        if self.train_seed is None:  # likewise runs from before train_seed existed
+            d.pop("train_seed")
         d["holdout_tasks"] = list(d["holdout_tasks"])
         return d
+
+    @property
+    def draw_seed(self) -> int:
+        """The seed of the weights, batches and augmentation."""
+        return self.seed if self.train_seed is None else self.train_seed
 
     def lr_at(self, step: int) -> float:
         if self.lr_schedule == "constant":
@@ -353,7 +363,7 @@ def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig,
     else:
         vocab = WordVocab.build([arrays.subplan[i] for i in train_idx] + [arrays.context[i] for i in train_idx])
         config = default_config(vocab, cfg.image_size)
-        torch.manual_seed(cfg.seed)
+        torch.manual_seed(cfg.draw_seed)
         net = build_net(config)
         step, state = 0, None
     opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
@@ -383,12 +393,12 @@ def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig,
     t0, s0, losses = time.perf_counter(), step, []
     with open(out / METRICS, "a") as log:
         while step < cfg.steps:
-            rng = np.random.default_rng([cfg.seed, step])
+            rng = np.random.default_rng([cfg.draw_seed, step])
             idx = train_idx[rng.integers(0, len(train_idx), min(cfg.batch_size, len(train_idx)))]
             b = len(idx)
             shifts = (tuple(rng.integers(-cfg.shift, cfg.shift + 1, (2, b))),
                       tuple(rng.integers(-cfg.shift, cfg.shift + 1, (2, b)))) if cfg.shift else None
-            torch.manual_seed(cfg.seed * 1_000_003 + step)
+            torch.manual_seed(cfg.draw_seed * 1_000_003 + step)
             photo = (tuple(rng.uniform(1 - cfg.jitter, 1 + cfg.jitter, (2, b))),
                      tuple(rng.uniform(1 - cfg.jitter, 1 + cfg.jitter, (2, b)))) if cfg.jitter else None
             for group in opt.param_groups:
