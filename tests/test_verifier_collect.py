@@ -51,6 +51,7 @@ def test_collect_keeps_what_the_verifier_saw_with_the_oracle_label_and_resumes(t
     info = json.loads((out / "info.json").read_text())
     assert info["collection"]["counts"]["libero_10/5"]["success"] + info["collection"]["counts"]["libero_10/5"][
         "failure"] == 3
+    assert info["collection"]["render_mode"] == "stock"  # the scripted policy's pixels: stock MuJoCo
     shards = ds.shard_paths(out)
 
     assert main([*COLLECT, "--per-task", "3", "--out", str(out)]) == 0  # nothing left to do

@@ -230,6 +230,9 @@ def collect(opts: CollectOptions, out: Path, *, progress: Callable | None = None
         counts = have_all
         ds.write_info(out, {"collection": {
             "settings": opts.settings(), "tasks": sorted({*counts, *tasks_info}), "per_task": opts.per_task,
+            # the pixels' render model (the policy's own for a learned VLA): a verifier trained on one sees the
+            # other's images out of distribution. Not a setting: it follows from the policy.
+            "render_mode": spec.render,
             "init_sources": {"official": "LIBERO's evaluation init states (episode e uses index e mod their count)",
                              "fresh-train": f"fresh states drawn with seeds task_seed + {FRESH_SEED_OFFSET['fresh-train']} + j",
                              "fresh-heldout": f"fresh states drawn with seeds task_seed + {FRESH_SEED_OFFSET['fresh-heldout']} + j"},
