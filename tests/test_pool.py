@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from seal.errors import InvalidInput
-from seal.sim.pool import EnvPool
+from seal.sim.pool import EnvPool, wait_awake
 
 CHUNKS = [np.random.default_rng(s).uniform(-1, 1, (5, 7)) for s in range(4)]
 
@@ -78,3 +78,26 @@ def test_worker_killed_between_commands_is_noticed_on_the_next_one(pool):
     assert {r.slot for r in results if not r.ok} == {0, 2}
     assert pool.worker_pids()[0] != pid
     assert pool.snapshot(0) == start and all(r.ok for r in pool.step(CHUNKS))
+
+
+def test_a_pause_of_the_whole_run_does_not_spend_a_workers_timeout():
+    """Ctrl-Z or SIGSTOP pauses the workers too: the pause is not time they failed to answer in."""
+    now, calls = [0.0], []
+
+    def clock():
+        return now[0]
+
+    def paused_once(objects, t):  # the second slice spans a 1000 s pause; the answer comes in the fourth
+        calls.append(t)
+        now[0] += 1000.0 if len(calls) == 2 else t
+        return ["answer"] if len(calls) == 4 else []
+
+    assert wait_awake(["conn"], 20.0, waiter=paused_once, clock=clock) == ["answer"]
+
+    def silent(objects, t):
+        calls.append(t)
+        now[0] += t
+        return []
+
+    calls.clear()
+    assert wait_awake(["conn"], 12.0, waiter=silent, clock=clock) == [] and calls == [5.0, 5.0, 2.0]

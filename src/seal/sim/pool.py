@@ -160,6 +160,27 @@ _HANDLERS = {
 
 
 # ---- parent side ----------------------------------------------------------------------------
+WAIT_SLICE_S = 5.0
+
+
+def wait_awake(objects: list, timeout: float, *, waiter=wait, clock=time.monotonic) -> list:
+    """`multiprocessing.connection.wait`, with ``timeout`` counted in time this process was awake.
+    A run paused with Ctrl-Z or SIGSTOP has its workers paused too; counted in wall time, the pause
+    would spend their whole timeout and the first wait after resuming would give up on a worker that
+    is about to answer. Waiting in slices and counting a slice as at most its own length leaves the
+    pause out."""
+    waited = 0.0
+    while True:
+        step = min(WAIT_SLICE_S, timeout - waited)
+        start = clock()
+        ready = waiter(objects, max(step, 0.0))
+        if ready:
+            return ready
+        waited += min(clock() - start, step)  # a slice far longer than asked was a pause
+        if waited >= timeout:
+            return []
+
+
 class _Worker:
     def __init__(self, ctx, task: TaskSpec, render_mode: str, physics=None):
         self.conn, child = ctx.Pipe()
@@ -172,7 +193,7 @@ class _Worker:
         assert tag == "ready"
 
     def recv(self, timeout: float):
-        ready = wait([self.conn, self.process.sentinel], timeout)
+        ready = wait_awake([self.conn, self.process.sentinel], timeout)
         if self.conn in ready:
             try:
                 return self.conn.recv()
