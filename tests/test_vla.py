@@ -4,6 +4,7 @@ resume of training, the policy seam and `seal bench vla`. Tiny models, one threa
 from __future__ import annotations
 
 import json
+import shutil
 from dataclasses import replace
 from types import SimpleNamespace
 
@@ -20,6 +21,7 @@ from seal.errors import InvalidInput
 from seal.policies import make_policy
 from seal.policies.base import Reasoning
 from seal.policies.vla.checkpoint import export_checkpoint, load_checkpoint, save_checkpoint
+from seal.policies.vla.locate import trained_render
 from seal.policies.vla.model import VLAConfig, VLAModel
 from seal.policies.vla.policy import VLAPolicy
 from seal.policies.vla.tokenizer import SPECIALS, VLATokenizer, project_texts, train_tokenizer
@@ -289,6 +291,14 @@ def test_train_vla_command_and_bench(annotated, tmp_path, capsys):
     (row,) = bench["rollouts"]
     assert row["task"] == "libero_10/5" and row["steps"] == 10 and row["start_seed"] >= start_seed("libero_10/5", 1000)
     assert bench["rollout_success"] == 0.0 and set(row["goal_status"]) == {"In(black_book_1, desk_caddy_1_back_contain_region)"}
+    assert bench["rollout_render"] == shipped["render"]["mode"] and "rollout_render_note" not in bench
+    # a manifest from before the render field: the stock guess is flagged, not silent
+    old = tmp_path / "old_ship"
+    shutil.copytree(tmp_path / "ship", old)
+    manifest = json.loads((old / "manifest.json").read_text())
+    del manifest["render"]
+    (old / "manifest.json").write_text(json.dumps(manifest))
+    assert trained_render(str(old)) == {"mode": "stock", "fast_version": None, "recorded": False}
     # the Fig. 6 breakdown steers this checkpoint, at the size it was trained at
     assert main(["bench", "runtime", "--policy", f"vla:{tmp_path / 'ship'}", "--tasks", "5", "--ks", "2",
                  "--trials", "1", "--max-steps", "10", "--workers", "1"]) == 0

@@ -226,7 +226,12 @@ def run(args) -> dict:
 
         if not args.ckpt:
             raise InvalidInput("--rollouts needs --ckpt: a random-init model has nothing to show")
-        render = args.render or trained_render(str(path))["mode"]  # the mode its demonstrations were recorded in
+        trained = trained_render(str(path))
+        render = args.render or trained["mode"]  # the mode its demonstrations were recorded in
+        if not args.render and not trained["recorded"]:  # a guess: say so, the success rate depends on it
+            out["rollout_render_note"] = (f"{path}'s manifest records no render mode; rolling out in "
+                                          f"{render!r} (pass --render to choose)")
+            print(f"seal: warning: {out['rollout_render_note']}", file=sys.stderr, flush=True)
         out |= rollouts(str(path), tasks=args.tasks, n=int(args.rollouts), render=render,
                         max_steps=getattr(args, "max_steps", None))
     return out

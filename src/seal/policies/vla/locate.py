@@ -53,10 +53,11 @@ def checkpoint_digest(spec: str = "") -> str:
 
 def trained_render(spec: str = "") -> dict:
     """The render model a checkpoint's demonstrations were recorded in: ``{"mode": "stock"|"fast",
-    "fast_version": int|None}`` from its manifest (``stock`` when the manifest predates the field)."""
+    "fast_version": int|None, "recorded": bool}`` from its manifest (``stock`` and ``recorded`` False
+    when the manifest predates the field)."""
     path = resolve_checkpoint(spec)
     try:
         render = json.loads((path / MANIFEST).read_text()).get("render") or {}
     except json.JSONDecodeError as exc:
         raise InvalidInput(f"{path / MANIFEST} is not valid JSON ({exc})") from None
-    return {"mode": render.get("mode", "stock"), "fast_version": render.get("fast_version")}
+    return {"mode": render.get("mode", "stock"), "fast_version": render.get("fast_version"), "recorded": bool(render)}
