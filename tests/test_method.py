@@ -35,6 +35,9 @@ def test_new_settings_enter_the_hash_only_when_set():
     assert MethodSpec(policy="remote", port=9000).config_hash == MethodSpec(policy="remote", port=8001).config_hash
     assert MethodSpec(policy="remote").config_hash != plain.config_hash
     assert MethodSpec(mismatch=(1.3, 0.8, 1.2)).label == "seal[mismatch=1.3/0.8/1.2]"
+    assert MethodSpec(pick="first").config_hash == plain.config_hash
+    assert MethodSpec(pick="best").label == "seal[pick=best]"
+    assert MethodSpec(method="random", pick="best").config_hash == MethodSpec(method="random").config_hash
 
 
 def test_parse_methods_takes_every_option():

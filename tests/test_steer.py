@@ -1,4 +1,5 @@
 import asyncio
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -53,6 +54,40 @@ def test_seal_episode_commits_verified_winners(pool, tmp_path):
     cands = [e for e in trace if e["event"] == "candidate"]
     assert {c["ended_by"] for c in cands} <= {"think", "budget", "step_limit", "task_success", "stopped", "error"}
     assert result.verifier_calls >= 2
+
+
+class SlotScoredOracle(OracleVerifier):
+    """The oracle's verdicts with a score that grows with the slot: pick=best must commit the
+    highest passing slot of its round, pick=first the first to pass."""
+
+    async def verify(self, request) -> Verdict:
+        verdict = await super().verify(request)
+        return replace(verdict, score=0.5 + 0.1 * request.candidate) if verdict.success else verdict
+
+
+def test_best_pick_judges_the_whole_round_and_commits_its_most_confident_pass(pool, tmp_path):
+    config = SteerConfig(method="seal", k=4, pick="best")
+    result, trace = _steer(pool, config, SlotScoredOracle(), FailureKnobs.misaligned(), tmp_path)
+    assert result.success and not result.sim_error
+    rounds, current = [], []
+    for e in trace:
+        if e["event"] == "candidate":
+            current.append(e)
+        elif e["event"] == "commit":
+            rounds.append((e, current))
+            current = []
+        elif e["event"] == "round_end":
+            current = []
+    assert rounds
+    for commit, cands in rounds:
+        if commit["ended_by"] == "task_success":
+            continue  # the task's own check decided it
+        assert all(c["verdict"] is not None for c in cands if c["error"] is None)  # nobody stopped early
+        passed = [c["slot"] for c in cands if c["verdict"] and c["verdict"]["success"]]
+        if passed:
+            assert commit["slot"] == max(passed), (commit, passed)
+    with pytest.raises(InvalidInput, match="pick"):
+        SteerConfig(method="seal", pick="last")
 
 
 def test_base_method_runs_one_unverified_candidate(pool, tmp_path):

@@ -44,7 +44,7 @@ from seal.sim.observation import Observation
 from seal.sim.snapshot import Snapshot
 from seal.steer.background import BackgroundVerifier
 from seal.steer.events import GridWriter, Subscriber
-from seal.steer.method import MODES, VALUE_GOALS
+from seal.steer.method import MODES, PICKS, VALUE_GOALS
 from seal.steer.selection import METHODS, Candidate, Check, Subplan, selection_for
 from seal.steer.trace import Trace
 from seal.verify.base import Verdict, VerifyRequest
@@ -64,6 +64,7 @@ class SteerConfig:
     seed: int = 0
     value_goal: str = "task"  # value method: what the scorer is conditioned on (V-GPS uses the task)
     check_every: int = 20  # policies that never think: steps between mid-rollout verifier checks
+    pick: str = "first"  # seal: the first pass, or the best-scored pass of a whole round (MethodSpec.pick)
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -72,6 +73,8 @@ class SteerConfig:
             raise InvalidInput(f"unknown value goal {self.value_goal!r}; valid: {', '.join(VALUE_GOALS)}")
         if self.mode not in MODES:
             raise InvalidInput(f"unknown mode {self.mode!r}; valid: {', '.join(MODES)}")
+        if self.pick not in PICKS:
+            raise InvalidInput(f"unknown pick {self.pick!r}; valid: {', '.join(PICKS)}")
         if self.k < 1 or self.rounds < 1 or self.subplan_budget < ACTION_HORIZON or self.check_every < ACTION_HORIZON:
             raise InvalidInput(f"need k >= 1, rounds >= 1, subplan_budget >= {ACTION_HORIZON}, check_every >= "
                                f"{ACTION_HORIZON}; got k={self.k}, rounds={self.rounds}, "
@@ -79,7 +82,7 @@ class SteerConfig:
 
     @property
     def effective_k(self) -> int:
-        return selection_for(self.method).k(self)
+        return selection_for(self.method, self.pick).k(self)
 
 
 @dataclass
@@ -128,7 +131,7 @@ class Steerer:
 
     def __init__(self, pool, policy, verifier, config: SteerConfig, *, eval_world=None, trace: Trace | None = None,
                  grid_dir=None, scorer=None, subscribers: tuple[Subscriber, ...] = ()):
-        self.selection = selection_for(config.method)
+        self.selection = selection_for(config.method, config.pick)
         self.selection.check(verifier, scorer)
         self.scorer = scorer
         if pool.k < config.effective_k:
@@ -348,7 +351,7 @@ class Steerer:
         t0 = time.perf_counter()
         for c in sorted((c for c in cands if c.future is not None and c.verdict is None), key=lambda c: c.t_end):
             self._take_verdict(c)
-            if c.verdict.passed:
+            if c.verdict.passed and self.selection.stops_at_first_pass:
                 break
         result.timing["verify_wait_s"] += time.perf_counter() - t0
         return self._first_pass(cands)

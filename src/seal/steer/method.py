@@ -28,6 +28,7 @@ from seal.steer.selection import METHODS, SELECTIONS  # one per candidate-select
 KNOBS = ("clean", "misaligned")
 MODES = ("sync", "replay")
 VALUE_GOALS = ("task", "subplan")
+PICKS = ("first", "best")  # seal: the first candidate to pass, or the most confident pass of a whole round
 RENDERS = ("stock", "fast")
 PLANNERS = ("", "annotations", "vlm")
 PROMPTS = ("task", "subplan")
@@ -35,7 +36,7 @@ TRANSPORTS = ("auto", "batched", "concurrent", "sequential")
 
 # Fields added after stores existed: in the canonical form only when not at their default.
 _LATER = ("mismatch", "check_every", "subplan_budget", "planner", "annotations", "planner_model", "prompt",
-          "policy_ckpt")
+          "policy_ckpt", "pick")
 _NO_HASH = {"hash": False}  # where a model runs, not what it is
 
 
@@ -66,6 +67,9 @@ class MethodSpec:
     planner_model: str | None = None  # vlm planner
     prompt: str = "task"  # remote policy without reasoning: prompt with the task or the sub-plan
     policy_ckpt: str = ""  # vla only: checkpoint dir, or shipped 'reason' (default) / 'twin'; also `policy=vla:PATH`
+    # seal only: "first" commits the first candidate whose verdict passes (the paper's rule, early exit);
+    # "best" waits for every verdict of the round and commits the pass with the highest score
+    pick: str = "first"
     # -- connection details, never hashed --
     base_url: str | None = field(default=None, metadata=_NO_HASH)  # OpenAI-compatible VLM server
     host: str = field(default="127.0.0.1", metadata=_NO_HASH)  # remote policy server
@@ -94,6 +98,7 @@ class MethodSpec:
         _one_of("knobs setting", self.knobs, KNOBS)
         _one_of("mode", self.mode, MODES)
         _one_of("value_goal", self.value_goal, VALUE_GOALS)
+        _one_of("pick", self.pick, PICKS)
         if self.render is None:
             object.__setattr__(self, "render", self._policy_render() or "stock")
         _one_of("render", self.render, RENDERS)
@@ -145,7 +150,7 @@ class MethodSpec:
 
         return SteerConfig(method=self.method, k=self.k, rounds=self.rounds, subplan_budget=self.subplan_budget,
                            mode=self.mode, max_steps=max_steps, seed=seed, value_goal=self.value_goal,
-                           check_every=self.check_every)
+                           check_every=self.check_every, pick=self.pick)
 
     def physics(self):
         """The prediction worlds' `PhysicsMismatch`, or None for the true physics."""
@@ -181,7 +186,7 @@ class MethodSpec:
         if d.get("mismatch") is not None:
             d["mismatch"] = list(d["mismatch"])
         if self.method != "seal":
-            for name in ("verifier", "model", "false_positive", "false_negative", "rounds", "check_every"):
+            for name in ("verifier", "model", "false_positive", "false_negative", "rounds", "check_every", "pick"):
                 d.pop(name, None)
         elif self.verifier == "learned":  # the weights, not the path, decide the verdicts
             from seal.verify.learned import checkpoint_digest as learned_digest

@@ -9,7 +9,10 @@ sub-plan loop.
     base    K=1, nothing verified: the policy alone; its one candidate wins when it ends
     random  K candidates, one round; a random finished one
     seal    K candidates, verified in the background; the first that passes wins (early exit);
-            no pass after ``rounds`` rounds -> the best verifier score, else the first
+            no pass after ``rounds`` rounds -> the best verifier score, else the first.
+            With pick="best", every candidate of the round runs and is judged, and the pass
+            with the highest verifier score wins (no early exit: it spends the whole round
+            to trust a confident verdict over an early one)
     value   V-GPS: at every chunk the scorer's best of K chunks is executed
 """
 
@@ -82,6 +85,7 @@ class Selection:
     name = "base"
     verifies = False  # finished candidates go to the verifier
     scores = False  # chunks are ranked by a ChunkScorer (the episode builder loads one)
+    stops_at_first_pass = True  # the loop stops collecting verdicts once one passes
 
     def k(self, config: "SteerConfig") -> int:
         return 1
@@ -136,6 +140,10 @@ class SealSelection(Selection):
     name = "seal"
     verifies = True
 
+    def __init__(self, pick: str = "first"):
+        self.pick = pick
+        self.stops_at_first_pass = pick == "first"
+
     def k(self, config):
         return config.k
 
@@ -148,7 +156,12 @@ class SealSelection(Selection):
 
     def early_winner(self, cands):
         passed = [c for c in cands if c.verdict is not None and c.verdict.passed]
-        return min(passed, key=lambda c: c.t_verified) if passed else None
+        if self.pick == "first":
+            return min(passed, key=lambda c: c.t_verified) if passed else None
+        settled = all(c.error is not None or c.verdict is not None for c in cands)
+        if not settled or not passed:  # a candidate still running or being judged may score higher
+            return None
+        return max(passed, key=lambda c: (1.0 if c.verdict.score is None else c.verdict.score, -c.t_verified))
 
     def fallback(self, usable, rng, result):
         result.fallbacks += 1
@@ -237,7 +250,7 @@ SELECTIONS: dict[str, type[Selection]] = {s.name: s for s in (Selection, RandomS
 METHODS = tuple(SELECTIONS)  # base, random, value, seal
 
 
-def selection_for(method: str) -> Selection:
+def selection_for(method: str, pick: str = "first") -> Selection:
     if method not in SELECTIONS:
         raise InvalidInput(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
-    return SELECTIONS[method]()
+    return SealSelection(pick) if method == "seal" else SELECTIONS[method]()
