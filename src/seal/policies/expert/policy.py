@@ -17,12 +17,11 @@ from seal.errors import InvalidInput
 from seal.policies.base import ACTION_HORIZON, PREDICT_HORIZON, ActionChunk, Reasoning
 from seal.policies.expert import lay, shelf, shelf_slide, skills, stow, upright
 from seal.policies.expert.plan import SubPlan, decompose
-from seal.sim.lexicon import category
+from seal.sim.control import METRES_PER_ACTION, RADIANS_PER_ACTION
 from seal.sim.goals import GoalAtom
+from seal.sim.lexicon import category
 from seal.sim.observation import Observation
 from seal.sim.scene import SceneState
-from seal.sim.control import METRES_PER_ACTION, RADIANS_PER_ACTION
-
 
 
 @dataclass(frozen=True)
