@@ -233,10 +233,13 @@ def test_exported_heldout_cases_score_as_the_training_run_scored_them(run, data,
     out, summary = run
     dest = tmp_path / "heldout"
     assert main(["train", "verifier", "--data", str(data), "--holdout-tasks", "libero_10/1", "--holdout-inits", "0.25",
-                 "--export-heldout", "--out", str(dest)]) == 0
+                 "--export-heldout", "--export-train", "--out", str(dest)]) == 0
     counts = json.loads(capsys.readouterr().out)["cases"]
     assert counts == {"train": summary["split"]["train"], "heldout_inits": 30, "heldout_tasks": 120} \
         == {k: summary["split"][k] for k in counts}
+    from seal.train.verifier import export_heldout
+    assert set(export_heldout([data], tmp_path / "plain", CFG)) == {"heldout_inits", "heldout_tasks"}
+    assert not (tmp_path / "plain" / "train").exists()  # the training cases are copied only when asked
     arrays, _ = load_arrays(data, 32)
     parts = split(arrays, CFG)
     exported = ds.read_cases(dest / "heldout_inits", columns=["case_id"]).column("case_id").to_pylist()

@@ -198,7 +198,8 @@ def _cmd_train_verifier(args) -> int:
     if args.export_heldout:
         from seal.train.verifier import export_heldout
 
-        counts = export_heldout([Path(d) for d in args.data.split(",") if d], Path(args.out), cfg)
+        counts = export_heldout([Path(d) for d in args.data.split(",") if d], Path(args.out), cfg,
+                                train=args.export_train)
         print(json.dumps({"out": str(Path(args.out).resolve()), "cases": counts}))
         return 0
     if args.score:
@@ -577,9 +578,11 @@ def _add_train(sub) -> None:
                      "and --seed make, per split and per policy that made the cases (one JSON; --out caches images)")
     ver.add_argument("--export-heldout", action="store_true",
                      help="instead of training: write the held-out cases this command's --data, --holdout-tasks, "
-                     "--holdout-inits and --seed make as collections OUT/heldout_inits and OUT/heldout_tasks (and "
-                     "the rest as OUT/train), for `seal bench verifier --data` (any verifier on the cases a learned "
-                     "one was held out on)")
+                     "--holdout-inits and --seed make as collections OUT/heldout_inits and OUT/heldout_tasks, for "
+                     "`seal bench verifier --data` (any verifier on the cases a learned one was held out on)")
+    ver.add_argument("--export-train", action="store_true",
+                     help="with --export-heldout: the rest of the split too, as OUT/train (a calibration set when "
+                     "--data is a collection the verifier did not train on, e.g. another policy's cases)")
     train.set_defaults(func=_cmd_train)
 
 

@@ -219,16 +219,19 @@ def part_of(task: str, init_key: str, source: str, cfg: VerifierTrainConfig) -> 
     return "heldout_inits" if h < cfg.holdout_inits and not demo else "train"
 
 
-def export_heldout(data: list[Path], out: Path, cfg: VerifierTrainConfig) -> dict[str, int]:
-    """Write a training run's split as collections ``out/heldout_inits``, ``out/heldout_tasks`` and
-    ``out/train`` (shards copied row for row), so `seal bench verifier --data` scores any verifier, a
-    VLM included, on exactly the cases a learned verifier was held out on. The train part of a
-    collection the run did not train on (another policy's cases) is a calibration set: it shares no
-    start and no task with the held-out parts, so a threshold picked on it is not tuned on them."""
+def export_heldout(data: list[Path], out: Path, cfg: VerifierTrainConfig, *, train: bool = False) -> dict[str, int]:
+    """Write the held-out parts of a training run's split as collections ``out/heldout_inits`` and
+    ``out/heldout_tasks`` (shards copied row for row), so `seal bench verifier --data` scores any
+    verifier, a VLM included, on exactly the cases a learned verifier was held out on. With
+    ``train``, the rest too, as ``out/train``: for a collection the run did not train on (another
+    policy's cases) that is a calibration set sharing no start and no task with the held-out parts,
+    so a threshold picked on it is not tuned on them. (Off by default: for the run's own training
+    data it would copy hundreds of MB for nothing.)"""
     import pyarrow.parquet as pq
 
     out = Path(out)
-    counts = {"train": 0, "heldout_inits": 0, "heldout_tasks": 0}
+    counts = {"train": 0} if train else {}
+    counts |= {"heldout_inits": 0, "heldout_tasks": 0}
     for d in data:
         ds.read_info(d)
         for path in ds.shard_paths(d):
