@@ -344,3 +344,17 @@ def test_score_gives_a_runs_own_heldout_figures_per_policy(run, data, tmp_path, 
         mine = scores[f"{part}/scripted"]
         assert (mine["n"], mine["accuracy"], mine["confusion"]) == (
             summary[part]["n"], summary[part]["accuracy"], summary[part]["confusion"])
+
+
+def test_prepare_images_is_an_area_average_of_the_224px_view():
+    """The model's resize (shared by training and verdicts) is each output pixel's mean over its
+    block of input pixels: checked against numpy on an exact 2x and torch's adaptive pooling at 96."""
+    from seal.verify.learned import prepare_images
+
+    rng = np.random.default_rng(0)
+    images = rng.integers(0, 256, (3, 224, 224, 3), dtype=np.uint8)
+    half = prepare_images(images, 112).numpy()
+    blocks = images.astype(np.float64).reshape(3, 112, 2, 112, 2, 3).mean(axis=(2, 4)).transpose(0, 3, 1, 2) / 255
+    np.testing.assert_allclose(half, blocks, atol=1e-6)
+    plain = torch.tensor(images.transpose(0, 3, 1, 2).copy(), dtype=torch.float32) / 255
+    assert torch.equal(prepare_images(images, 96), torch.nn.functional.adaptive_avg_pool2d(plain, 96))

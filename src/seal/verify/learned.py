@@ -145,7 +145,9 @@ def prepare_images(images: np.ndarray, size: int):
     """(B, H, W, 3) uint8 -> (B, 3, size, size) float in [0, 1], area-downsampled (the model's own
     preprocessing; training data goes through the same function)."""
     torch = _torch()
-    x = torch.from_numpy(np.ascontiguousarray(images)).permute(0, 3, 1, 2).float().div_(255.0)
+    # contiguous before the resize: "area" on the permuted (channels-last) strides is ~2.5x slower
+    # on CPU, and the result is the same to the bit
+    x = torch.from_numpy(np.ascontiguousarray(images)).permute(0, 3, 1, 2).contiguous().float().div_(255.0)
     if x.shape[-1] != size or x.shape[-2] != size:
         x = torch.nn.functional.interpolate(x, size=(size, size), mode="area")
     return x
