@@ -130,6 +130,36 @@ def test_cosine_schedule_decays_to_zero_and_fixes_the_run_length(data, tmp_path)
         VerifierTrainConfig(lr_schedule="linear").lr_at(0)
 
 
+def test_ema_checkpoints_the_average_and_resumes_exactly(data, tmp_path):
+    cfg = VerifierTrainConfig(steps=6, batch_size=8, image_size=32, holdout_inits=0.25, lr=0.01, ema=0.9)
+    train_verifier(data, tmp_path / "straight", cfg)
+    train_verifier(data, tmp_path / "resumed", VerifierTrainConfig(**{**cfg.__dict__, "steps": 3}))
+    train_verifier(data, tmp_path / "resumed", cfg)
+    a, _, _ = load_checkpoint(tmp_path / "straight")
+    b, _, _ = load_checkpoint(tmp_path / "resumed")
+    for (name, x), y in zip(a.state_dict().items(), b.state_dict().values()):
+        assert torch.equal(x, y), name
+    # the checkpoint is the average, not the last weights: redo the average from each step's raw weights
+    raw = torch.load(tmp_path / "straight" / "train_state.pt", weights_only=True)["raw"]
+    assert not all(torch.equal(x, raw[k]) for k, x in a.state_dict().items())
+    # (the raw weights after s steps are those of a plain run of s steps: batches are drawn per step)
+    runs = [tmp_path / f"s{s}" for s in range(7)]
+    for s, run_dir in enumerate(runs):
+        train_verifier(data, run_dir, VerifierTrainConfig(**{**cfg.__dict__, "steps": s, "ema": 0.0}))
+    average = {k: v.clone() for k, v in load_checkpoint(runs[0])[0].state_dict().items()}
+    for s in range(1, 7):
+        w = load_checkpoint(runs[s])[0].state_dict()
+        d = min(0.9, (1 + s) / (10 + s))
+        average = {k: d * average[k] + (1 - d) * w[k] for k in average}
+    for k, x in a.state_dict().items():
+        torch.testing.assert_close(x, average[k], rtol=1e-5, atol=1e-6)
+    assert "ema" not in VerifierTrainConfig().identity()  # runs from before the option stay resumable
+    with pytest.raises(InvalidInput, match="other settings"):
+        train_verifier(data, tmp_path / "resumed", VerifierTrainConfig(**{**cfg.__dict__, "ema": 0.0}))
+    with pytest.raises(InvalidInput, match=r"ema decay must be in \[0, 1\)"):
+        train_verifier(data, tmp_path / "bad", VerifierTrainConfig(**{**cfg.__dict__, "ema": 1.5}))
+
+
 def test_bad_checkpoints_are_refused_with_what_is_wrong(run, tmp_path):
     out, _ = run
     bad = tmp_path / "truncated"

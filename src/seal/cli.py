@@ -193,7 +193,7 @@ def _cmd_train_verifier(args) -> int:
     cfg = VerifierTrainConfig(steps=args.steps or 2000, batch_size=args.batch_size or 64, lr=args.lr or 1e-3,
                               image_size=args.image_size, holdout_tasks=holdout, holdout_inits=args.holdout_inits,
                               jitter=args.jitter, weight_decay=args.weight_decay, lr_schedule=args.lr_schedule,
-                              seed=0 if args.seed is None else args.seed, train_seed=args.train_seed,
+                              seed=0 if args.seed is None else args.seed, train_seed=args.train_seed, ema=args.ema,
                               save_every_s=args.save_every_min * 60.0)
     if args.export_heldout:
         from seal.train.verifier import export_heldout
@@ -569,6 +569,9 @@ def _add_train(sub) -> None:
     ver.add_argument("--weight-decay", type=float, default=1e-4, help="AdamW weight decay (default 1e-4)")
     ver.add_argument("--lr-schedule", default="constant", choices=["constant", "cosine"],
                      help="learning rate over the run: constant, or cosine decay to 0 at --steps (default constant)")
+    ver.add_argument("--ema", type=float, default=0.0,
+                     help="checkpoint an exponential moving average of the weights with this decay, e.g. 0.999 "
+                     "(it is also what the held-out figures score); default 0: the last weights")
     ver.add_argument("--train-seed", type=int, default=None,
                      help="seed of the initial weights, batches and augmentation (default: --seed, which also draws "
                      "the held-out split); another --train-seed on the same split measures run-to-run spread")

@@ -22,6 +22,7 @@ step), so continuing from a checkpoint gives the same weights as never stopping.
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import json
 import math
@@ -67,6 +68,11 @@ class VerifierTrainConfig:
     # "constant", or "cosine": lr * (1 + cos(pi * step / steps)) / 2, which ends training at a small step
     # size (the held-out figures of a constant-lr run swing by several points between evaluations)
     lr_schedule: str = "constant"
+    # > 0: the checkpoint holds an exponential moving average of the weights with this decay (e.g.
+    # 0.999, ~1000 steps), which is also what is evaluated; the raw weights go on training. A
+    # constant-lr run's held-out figures swing by several points between evaluations, so the last
+    # raw weights are a draw; the average is steadier. 0: off (the raw weights are the checkpoint).
+    ema: float = 0.0
     log_every: int = 20
     eval_every: int = 200
     save_every_s: float = 300.0
@@ -81,6 +87,8 @@ class VerifierTrainConfig:
             d.pop("lr_schedule")
         if self.train_seed is None:  # likewise runs from before train_seed existed
             d.pop("train_seed")
+        if not self.ema:  # and runs from before the average existed
+            d.pop("ema")
         d["holdout_tasks"] = list(d["holdout_tasks"])
         return d
 
@@ -333,6 +341,14 @@ def _photometric(x, brightness: np.ndarray, contrast: np.ndarray):
     return ((x - mean) * c + mean).mul_(b).clamp_(0.0, 1.0)
 
 
+@torch.no_grad()
+def _average_into(average, net, decay: float) -> None:
+    """average <- decay * average + (1 - decay) * net. The caller ramps the decay up from ~0.1 over
+    the first steps, so the random initial weights do not linger in the average."""
+    for a, p in zip(average.parameters(), net.parameters()):
+        a.lerp_(p, 1.0 - decay)
+
+
 def _save_state(out: Path, obj: dict) -> None:
     tmp = out / f".{STATE}.tmp"
     torch.save(obj, tmp)
@@ -361,19 +377,26 @@ def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig,
             raise InvalidInput(f"{out} was trained with other settings or data (saved {saved}, data {state['data']}; "
                                f"now {cfg.identity()}, data {fingerprint}); use another --out")
         net, config, vocab = load_checkpoint(out)
-        net.train()
         step = int(state["step"])
+        average = None
+        if cfg.ema:  # the checkpoint is the average; the raw weights are in the state
+            average, net = net, build_net(config)
+            net.load_state_dict(state["raw"])
     else:
         vocab = WordVocab.build([arrays.subplan[i] for i in train_idx] + [arrays.context[i] for i in train_idx])
         config = default_config(vocab, cfg.image_size)
         torch.manual_seed(cfg.draw_seed)
         net = build_net(config)
         step, state = 0, None
+        average = copy.deepcopy(net) if cfg.ema else None
     opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     if state is not None:
         opt.load_state_dict(state["optimizer"])
     max_words, threshold = int(config["max_words"]), float(config["threshold"])
     cfg.lr_at(0)  # a bad schedule name fails before any work
+    if not 0.0 <= cfg.ema < 1.0:
+        raise InvalidInput(f"ema decay must be in [0, 1) (0: off; e.g. 0.999), got {cfg.ema}")
+    judged = average if cfg.ema else net  # what is evaluated and saved as the checkpoint
     if len(train_idx) < 2:
         raise InvalidInput(f"only {len(train_idx)} training case(s); collect more")
 
@@ -381,15 +404,15 @@ def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig,
         return {"step": step, "data": ",".join(map(str, datas)), "data_fingerprint": fingerprint,
                 "split": {k: int(len(v)) for k, v in parts.items()},
                 "holdout_tasks": list(cfg.holdout_tasks), "holdout_inits": cfg.holdout_inits,
-                "train": evaluate(net, arrays, train_idx[:2000], vocab, max_words, threshold) if final else None,
-                "heldout_inits": evaluate(net, arrays, parts["heldout_inits"], vocab, max_words, threshold),
-                "heldout_tasks": evaluate(net, arrays, parts["heldout_tasks"], vocab, max_words, threshold)}
+                "train": evaluate(judged, arrays, train_idx[:2000], vocab, max_words, threshold) if final else None,
+                "heldout_inits": evaluate(judged, arrays, parts["heldout_inits"], vocab, max_words, threshold),
+                "heldout_tasks": evaluate(judged, arrays, parts["heldout_tasks"], vocab, max_words, threshold)}
 
     def checkpoint() -> None:
         config["training"] = {"step": step, "data_fingerprint": fingerprint, "config": cfg.identity()}
-        save_checkpoint(out, net, config)
+        save_checkpoint(out, judged, config)
         _save_state(out, {"identity": json.dumps(cfg.identity()), "data": fingerprint, "step": step,
-                          "optimizer": opt.state_dict()})
+                          "optimizer": opt.state_dict()} | ({"raw": net.state_dict()} if cfg.ema else {}))
 
     net.train()
     last_save = time.monotonic()
@@ -412,6 +435,8 @@ def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig,
             loss.backward()
             opt.step()
             step += 1
+            if cfg.ema:
+                _average_into(average, net, min(cfg.ema, (1 + step) / (10 + step)))
             losses.append(loss.item())
             info = f"loss {np.mean(losses[-20:]):.4f}"
             if step % cfg.log_every == 0 or step == cfg.steps:
