@@ -125,3 +125,29 @@ def test_binary_metrics():
     assert m["confusion"] == {"tp": 1, "fp": 1, "fn": 1, "tn": 2}
     assert m["accuracy"] == 0.6 and m["precision"] == 0.5 and m["recall"] == 0.5 and m["f1"] == 0.5
     assert m["fp_rate"] == pytest.approx(1 / 3, abs=1e-4) and m["fn_rate"] == 0.5
+
+
+def test_intervals_resample_start_states_not_cases():
+    from seal.benchmarks.verifier import start_intervals
+
+    # 400 cases, 200 right: once as 20 starts whose 20 cases are all right or all wrong, once as 400
+    # independent starts. Same accuracy; the clustered set knows far less about it.
+    labels = [True] * 400
+    predicted = [i < 200 for i in range(400)]
+    clustered = start_intervals(labels, predicted, [i // 20 for i in range(400)])
+    independent = start_intervals(labels, predicted, list(range(400)))
+    assert clustered["starts"] == 20 and independent["starts"] == 400
+    for ci in (clustered, independent):
+        assert ci["accuracy"][0] < 0.5 < ci["accuracy"][1]
+    assert clustered["accuracy"][1] - clustered["accuracy"][0] > 0.35  # ~ +-0.22 for 10 of 20 starts
+    assert independent["accuracy"][1] - independent["accuracy"][0] < 0.12  # ~ +-0.05 for 200 of 400 cases
+    assert clustered["precision"] == [1.0, 1.0]  # no false success in any resample
+    assert start_intervals(labels, predicted, [i // 20 for i in range(400)]) == clustered  # seeded
+
+
+def test_bench_reports_intervals_over_start_states(cases, capsys):
+    out = _bench(capsys, "--verifier", "noisy", "--false-positive", "1", "--data", str(cases))
+    rows = ds.read_cases(cases, ["task", "init_source", "init_index"]).to_pylist()
+    starts = {ds.init_key_of(r["task"], r["init_source"], r["init_index"]) for r in rows}
+    assert out["ci95"]["starts"] == len(starts) and out["ci95"]["by"] == "start state"
+    assert out["ci95"]["accuracy"][0] <= out["accuracy"] <= out["ci95"]["accuracy"][1]

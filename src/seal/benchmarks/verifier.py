@@ -21,6 +21,11 @@ A verifier that gives a confidence (``Verdict.score``: the learned one's P(succe
 verifier would trade. ``--min-precision P`` picks the lowest threshold whose precision on these
 cases reaches P (the most recall at that precision). Pick it on a calibration set that shares no
 start with the set you report on, then score the reported set with ``--threshold``.
+
+``ci95``: 95% intervals of accuracy, precision and recall that resample whole start states (the
+cases of one start share its scene and are far from independent: a Wilson interval over cases
+would be too narrow). Two verifiers whose figures fall inside each other's intervals on these
+cases are not told apart by them.
 """
 
 from __future__ import annotations
@@ -117,6 +122,27 @@ def pick_threshold(labels, scores, min_precision: float) -> dict:
     return {"min_precision": min_precision, "threshold": None, "cases": len(y)}
 
 
+def start_intervals(labels, predicted, starts, *, resamples: int = 2000, seed: int = 0) -> dict:
+    """Percentile-bootstrap 95% intervals of accuracy, precision and recall, resampling start states
+    (``starts``: one key per case) with replacement and keeping each start's cases together."""
+    y, p = np.asarray(labels, dtype=bool), np.asarray(predicted, dtype=bool)
+    keys, which = np.unique(np.asarray(starts, dtype=str), return_inverse=True)
+    counts = np.zeros((len(keys), 4))  # per start: tp, fp, fn, tn
+    for col, hit in enumerate((y & p, ~y & p, y & ~p, ~y & ~p)):
+        np.add.at(counts[:, col], which, hit)
+    draws = np.random.default_rng(seed).multinomial(len(keys), np.full(len(keys), 1.0 / len(keys)), size=resamples)
+    tp, fp, fn, tn = (draws @ counts).T
+    with np.errstate(invalid="ignore", divide="ignore"):
+        figures = {"accuracy": (tp + tn) / (tp + fp + fn + tn), "precision": tp / (tp + fp), "recall": tp / (tp + fn)}
+
+    def interval(values):
+        values = values[np.isfinite(values)]
+        return [round(float(np.percentile(values, q)), 4) for q in (2.5, 97.5)] if len(values) else None
+
+    return {"by": "start state", "starts": len(keys), "resamples": resamples,
+            **{name: interval(values) for name, values in figures.items()}}
+
+
 def score(verifier, data: Path, *, k: int = 10, limit: int | None = None, errors_png: Path | None = None,
           min_precision: float | None = None) -> dict:
     """Metrics of ``verifier`` on the cases under ``data``; with ``errors_png``, a contact sheet of
@@ -129,6 +155,7 @@ def score(verifier, data: Path, *, k: int = 10, limit: int | None = None, errors
     labels = [c.label for c in cases]
     predicted = [v.success is True for v in verdicts]
     out = {"verifier": verifier.name, "data": str(data), "cases": len(cases), "k": k, **binary_metrics(labels, predicted)}
+    out["ci95"] = start_intervals(labels, predicted, [ds.init_key_of(c.row["task"], c.row["init_source"], c.row["init_index"]) for c in cases])
     out["unknown"] = sum(v.success is None for v in verdicts)
     out["per_kind"] = {}
     for kind in ds.KINDS:
@@ -203,6 +230,11 @@ def markdown(result: dict) -> str:
             f"{result['ms_per_verdict']} ms per verdict (K={result['k']}), {result['unknown']} unknown, "
             f"{result['input_tokens']} input + {result['output_tokens']} output tokens, "
             f"${result['cost_usd']:.4f} spent (${result['cost_usd_uncached']:.4f} uncached)\n\n")
+    ci = result.get("ci95")
+    if ci and ci.get("accuracy"):
+        span = lambda name: "-" if ci[name] is None else f"[{ci[name][0]:.3f}, {ci[name][1]:.3f}]"
+        text += (f"95% intervals, resampling the {ci['starts']} start states: accuracy {span('accuracy')}, "
+                 f"precision {span('precision')}, recall {span('recall')}\n\n")
     text += head + row("all", result)
     for kind, m in result["per_kind"].items():
         text += row(kind, m)

@@ -34,6 +34,7 @@ import numpy as np
 
 from seal.errors import InvalidInput
 from seal.verify import dataset as ds
+from seal.verify.dataset import init_key_of
 from seal.verify.dataset import binary_metrics
 from seal.verify.learned import (WordVocab, build_net, context_of, default_config, load_checkpoint, prepare_images,
                                  save_checkpoint)
@@ -209,11 +210,6 @@ def split(arrays: CaseArrays, cfg: VerifierTrainConfig) -> dict[str, np.ndarray]
     if not (parts == "train").any():
         raise InvalidInput("nothing left to train on after the held-out splits")
     return {name: np.flatnonzero(parts == name) for name in ("train", "heldout_inits", "heldout_tasks")}
-
-
-def init_key_of(task: str, source: str, index: int) -> str:
-    """One init state of one task: the unit the held-out-inits split draws."""
-    return f"{task}:{source}:{index}"
 
 
 def part_of(task: str, init_key: str, source: str, cfg: VerifierTrainConfig) -> str | None:

@@ -223,6 +223,12 @@ def read_cases(root: Path, columns: list[str] | None = None):
     return pa.concat_tables(tables) if tables else schema.empty_table()
 
 
+def init_key_of(task: str, source: str, index: int) -> str:
+    """One init state of one task: the unit the held-out-inits split draws and the bootstrap of
+    `seal bench verifier` resamples (a start's cases share its scene)."""
+    return f"{task}:{source}:{index}"
+
+
 @dataclass
 class Case:
     """One case, images decoded (224x224x3 uint8)."""
