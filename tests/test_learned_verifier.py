@@ -378,13 +378,21 @@ def test_score_gives_a_runs_own_heldout_figures_per_policy(run, data, tmp_path, 
 
 def test_prepare_images_is_an_area_average_of_the_224px_view():
     """The model's resize (shared by training and verdicts) is each output pixel's mean over its
-    block of input pixels: checked against numpy on an exact 2x and torch's adaptive pooling at 96."""
+    block of input pixels, rounded to 8-bit levels as the training cache stores them: checked
+    against numpy on an exact 2x and torch's adaptive pooling at 96."""
     from seal.verify.learned import prepare_images
 
     rng = np.random.default_rng(0)
     images = rng.integers(0, 256, (3, 224, 224, 3), dtype=np.uint8)
     half = prepare_images(images, 112).numpy()
-    blocks = images.astype(np.float64).reshape(3, 112, 2, 112, 2, 3).mean(axis=(2, 4)).transpose(0, 3, 1, 2) / 255
-    np.testing.assert_allclose(half, blocks, atol=1e-6)
+    blocks = images.astype(np.float64).reshape(3, 112, 2, 112, 2, 3).mean(axis=(2, 4)).transpose(0, 3, 1, 2)
+    np.testing.assert_allclose(half * 255, np.round(half * 255), atol=1e-4)  # whole levels
+    assert np.abs(half * 255 - blocks).max() <= 0.5 + 1e-4  # the nearest level to the block mean
     plain = torch.tensor(images.transpose(0, 3, 1, 2).copy(), dtype=torch.float32) / 255
-    assert torch.equal(prepare_images(images, 96), torch.nn.functional.adaptive_avg_pool2d(plain, 96))
+    pooled = torch.nn.functional.adaptive_avg_pool2d(plain, 96)
+    assert torch.equal(prepare_images(images, 96), (pooled * 255).round() / 255)
+    # what a verdict sees is what the training cache holds (8-bit pixels at the model's size)
+    from seal.train.verifier import _downsample
+
+    cached = _downsample([ds.encode_png(im) for im in images], 96)
+    assert torch.equal(prepare_images(images, 96), torch.from_numpy(cached).float() / 255)

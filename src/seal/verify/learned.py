@@ -142,14 +142,15 @@ def build_net(config: dict):
 
 
 def prepare_images(images: np.ndarray, size: int):
-    """(B, H, W, 3) uint8 -> (B, 3, size, size) float in [0, 1], area-downsampled (the model's own
-    preprocessing; training data goes through the same function)."""
+    """(B, H, W, 3) uint8 -> (B, 3, size, size) float in [0, 1], area-downsampled and rounded to
+    whole 8-bit levels (the model's own preprocessing; training data goes through the same function
+    and is cached as 8-bit pixels, so the rounding makes a verdict see exactly what training saw)."""
     torch = _torch()
     # contiguous before the resize: "area" on the permuted (channels-last) strides is ~2.5x slower
     # on CPU, and the result is the same to the bit
     x = torch.from_numpy(np.ascontiguousarray(images)).permute(0, 3, 1, 2).contiguous().float().div_(255.0)
     if x.shape[-1] != size or x.shape[-2] != size:
-        x = torch.nn.functional.interpolate(x, size=(size, size), mode="area")
+        x = torch.nn.functional.interpolate(x, size=(size, size), mode="area").mul_(255.0).round_().div_(255.0)
     return x
 
 
