@@ -88,15 +88,21 @@ def test_cases_from_demonstrations_are_training_data_only(tmp_path):
     assert sum(arrays.source[i] == ds.DEMO_SOURCE for i in parts["train"]) == 20
 
 
-def test_resuming_gives_the_weights_of_an_uninterrupted_run(data, tmp_path):
-    cfg = VerifierTrainConfig(steps=6, batch_size=8, image_size=32, holdout_inits=0.25)
+def _assert_resume_is_exact(data, tmp_path, cfg):
+    """Train cfg straight and as half + resume; the two checkpoints must be equal. Returns the net."""
     train_verifier(data, tmp_path / "straight", cfg)
-    train_verifier(data, tmp_path / "resumed", VerifierTrainConfig(**{**cfg.__dict__, "steps": 3}))
+    train_verifier(data, tmp_path / "resumed", VerifierTrainConfig(**{**cfg.__dict__, "steps": cfg.steps // 2}))
     train_verifier(data, tmp_path / "resumed", cfg)
     a, _, _ = load_checkpoint(tmp_path / "straight")
     b, _, _ = load_checkpoint(tmp_path / "resumed")
     for (name, x), y in zip(a.state_dict().items(), b.state_dict().values()):
         assert torch.equal(x, y), name
+    return a
+
+
+def test_resuming_gives_the_weights_of_an_uninterrupted_run(data, tmp_path):
+    cfg = VerifierTrainConfig(steps=6, batch_size=8, image_size=32, holdout_inits=0.25)
+    _assert_resume_is_exact(data, tmp_path, cfg)
     with pytest.raises(InvalidInput, match="other settings"):
         train_verifier(data, tmp_path / "resumed", VerifierTrainConfig(**{**cfg.__dict__, "lr": 0.1}))
 
@@ -132,13 +138,7 @@ def test_cosine_schedule_decays_to_zero_and_fixes_the_run_length(data, tmp_path)
 
 def test_ema_checkpoints_the_average_and_resumes_exactly(data, tmp_path):
     cfg = VerifierTrainConfig(steps=6, batch_size=8, image_size=32, holdout_inits=0.25, lr=0.01, ema=0.9)
-    train_verifier(data, tmp_path / "straight", cfg)
-    train_verifier(data, tmp_path / "resumed", VerifierTrainConfig(**{**cfg.__dict__, "steps": 3}))
-    train_verifier(data, tmp_path / "resumed", cfg)
-    a, _, _ = load_checkpoint(tmp_path / "straight")
-    b, _, _ = load_checkpoint(tmp_path / "resumed")
-    for (name, x), y in zip(a.state_dict().items(), b.state_dict().values()):
-        assert torch.equal(x, y), name
+    a = _assert_resume_is_exact(data, tmp_path, cfg)
     # the checkpoint is the average, not the last weights: redo the average from each step's raw weights
     raw = torch.load(tmp_path / "straight" / "train_state.pt", weights_only=True)["raw"]
     assert not all(torch.equal(x, raw[k]) for k, x in a.state_dict().items())
