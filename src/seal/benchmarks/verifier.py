@@ -155,7 +155,8 @@ def score(verifier, data: Path, *, k: int = 10, limit: int | None = None, errors
     labels = [c.label for c in cases]
     predicted = [v.success is True for v in verdicts]
     out = {"verifier": verifier.name, "data": str(data), "cases": len(cases), "k": k, **binary_metrics(labels, predicted)}
-    out["ci95"] = start_intervals(labels, predicted, [ds.init_key_of(c.row["task"], c.row["init_source"], c.row["init_index"]) for c in cases])
+    starts = [ds.init_key_of(c.row["task"], c.row["init_source"], c.row["init_index"]) for c in cases]
+    out["ci95"] = start_intervals(labels, predicted, starts)
     out["unknown"] = sum(v.success is None for v in verdicts)
     out["per_kind"] = {}
     for kind in ds.KINDS:

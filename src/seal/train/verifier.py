@@ -34,8 +34,7 @@ import numpy as np
 
 from seal.errors import InvalidInput
 from seal.verify import dataset as ds
-from seal.verify.dataset import init_key_of
-from seal.verify.dataset import binary_metrics
+from seal.verify.dataset import binary_metrics, init_key_of
 from seal.verify.learned import (WordVocab, build_net, context_of, default_config, load_checkpoint, prepare_images,
                                  save_checkpoint)
 
@@ -356,6 +355,9 @@ def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig,
     """Train (or continue training) into ``out``; returns the summary written to metrics.json.
 
     ``progress(stage, done, total, info)``: stage "load" then "train"."""
+    cfg.lr_at(0)  # bad settings fail before the images are decoded (minutes for a full collection)
+    if not 0.0 <= cfg.ema < 1.0:
+        raise InvalidInput(f"ema decay must be in [0, 1) (0: off; e.g. 0.999), got {cfg.ema}")
     if threads:
         torch.set_num_threads(threads)
     out = Path(out)
@@ -389,9 +391,6 @@ def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig,
     if state is not None:
         opt.load_state_dict(state["optimizer"])
     max_words, threshold = int(config["max_words"]), float(config["threshold"])
-    cfg.lr_at(0)  # a bad schedule name fails before any work
-    if not 0.0 <= cfg.ema < 1.0:
-        raise InvalidInput(f"ema decay must be in [0, 1) (0: off; e.g. 0.999), got {cfg.ema}")
     judged = average if cfg.ema else net  # what is evaluated and saved as the checkpoint
     if len(train_idx) < 2:
         raise InvalidInput(f"only {len(train_idx)} training case(s); collect more")
