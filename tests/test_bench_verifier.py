@@ -52,6 +52,7 @@ def test_openai_scored_against_truth_and_never_paid_twice(server, cases, tmp_pat
     assert first["confusion"] == {"tp": 3, "fp": 3, "fn": 0, "tn": 0}
     assert first["precision"] == 0.5 and first["recall"] == 1.0 and first["fp_rate"] == 1.0
     assert first["per_kind"]["pick"]["n"] == 6
+    assert first["per_task"]["libero_10/0"]["confusion"] == first["confusion"]
     assert first["input_tokens"] == 6 * 1200 and first["output_tokens"] == 6 * 80
     pin, pout = PRICES_PER_MTOK["gpt-4o"]
     assert first["cost_usd"] == pytest.approx(6 * (1200 * pin + 80 * pout) / 1e6)
@@ -87,6 +88,22 @@ def test_oracle_and_noisy_on_recorded_truth(cases, capsys):
         from argparse import Namespace
 
         run(Namespace(verifier="noisy", data=str(cases), k=10, false_positive=None, false_negative=None))
+
+
+def test_per_task_table_names_where_the_mistakes_are(tmp_path, capsys):
+    from _verifier_cases import write_cases
+
+    data = write_cases(tmp_path / "cases", 6, tasks=("libero_10/0", "libero_10/2"), inits=2)
+    labels = {c.row["task"]: [] for c in ds.iter_cases(data)}
+    for c in ds.iter_cases(data):
+        labels[c.row["task"]].append(c.label)
+    result = _bench(capsys, "--verifier", "noisy", "--false-positive", "1", "--data", str(data),
+                    "--out", str(tmp_path / "t.md"))
+    for task, truth in labels.items():  # every failure called a success, task by task
+        assert result["per_task"][task]["confusion"] == {"tp": sum(truth), "fp": len(truth) - sum(truth),
+                                                         "fn": 0, "tn": 0}
+    table = (tmp_path / "t.md").read_text().split("By task:")[1]
+    assert "| libero_10/0 | 6 |" in table and "| libero_10/2 | 6 |" in table
 
 
 def test_case_layout_round_trip_and_torn_writes(cases):

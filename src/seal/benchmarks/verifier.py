@@ -166,8 +166,7 @@ def score(verifier, data: Path, *, k: int = 10, limit: int | None = None, errors
     out["per_task"] = {}
     for task in sorted({c.row["task"] for c in cases}):
         idx = [i for i, c in enumerate(cases) if c.row["task"] == task]
-        m = binary_metrics([labels[i] for i in idx], [predicted[i] for i in idx])
-        out["per_task"][task] = {key: m[key] for key in ("n", "accuracy", "precision", "recall")}
+        out["per_task"][task] = binary_metrics([labels[i] for i in idx], [predicted[i] for i in idx])
     out["ms_per_verdict"] = round(1000 * wall / len(cases), 3)
     out["input_tokens"] = sum(v.input_tokens for v in verdicts)
     out["output_tokens"] = sum(v.output_tokens for v in verdicts)
@@ -239,6 +238,10 @@ def markdown(result: dict) -> str:
     text += head + row("all", result)
     for kind, m in result["per_kind"].items():
         text += row(kind, m)
+    if len(result.get("per_task", {})) > 1:  # which tasks the mistakes come from (held-out tasks vs the rest)
+        text += "\nBy task:\n\n" + head.replace("| cases |", "| task |", 1)
+        for task, m in result["per_task"].items():
+            text += row(task, m)
     if result.get("operating_points"):
         text += (f"\nAt other thresholds (this run: {result['threshold']}):\n\n"
                  "| threshold | accuracy | precision | recall | FP rate |\n| ---: | ---: | ---: | ---: | ---: |\n")
