@@ -111,6 +111,11 @@ def test_noise_sweep_writes_rows_as_it_goes_resumes_and_plots(tmp_path, capsys):
     assert (tmp_path / "sweep" / "sweep.png").stat().st_size > 10_000
     assert main(args) == 0
     assert _json(capsys)["episodes_run"] == 0  # resumed: nothing ran twice
+    # a verifier measured outside the grid (one FP column, the star at FP 0.29) is inside the axes
+    from seal.benchmarks.sweep import _edges, plot_limits
+
+    lo, hi = plot_limits(_edges([0.0]), [0.29])
+    assert lo <= 0.0 and hi > 0.29 and plot_limits(_edges([0.0, 0.4]), [])[1] > 0.6
     with pytest.raises(InvalidInput, match="rates"):
         from seal.benchmarks.sweep import _rates
 

@@ -178,7 +178,16 @@ def _edges(values) -> np.ndarray:
     return np.concatenate([[v[0] - (mid[0] - v[0])], mid, [v[-1] + (v[-1] - mid[-1])]])
 
 
+def plot_limits(edges, values) -> tuple[float, float]:
+    """Axis range that holds the grid's cell edges and every measured point, with room for a label
+    on the high side."""
+    lo, hi = min(*edges, *values), max(*edges, *values)
+    return lo, hi + 0.12 * max(hi - lo, 0.1)
+
+
 def draw(table: dict, fps, fns, points, path: Path) -> Path:
+    """Heat map over the FP x FN grid with the measured verifiers as stars, and success against the
+    rate the sweep varies."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -205,16 +214,25 @@ def draw(table: dict, fps, fns, points, path: Path) -> Path:
                 clip_on=False, zorder=5)
         ax.annotate(p["label"], (p["fp_rate"], p["fn_rate"]), textcoords="offset points", xytext=(6, 6),
                     fontsize=8, color="red")
+    # The measured points may lie outside the grid (one FP column, a verifier at FP 0.29): widen the
+    # axes to show them with their labels, never crop the grid.
+    ax.set_xlim(*plot_limits(xe, [p["fp_rate"] for p in points]))
+    ax.set_ylim(*plot_limits(ye, [p["fn_rate"] for p in points]))
     ax.set_xlabel("false-positive rate")
     ax.set_ylabel("false-negative rate")
     ax.set_title("SEAL success by verifier error rates")
     fig.colorbar(mesh, ax=ax, label="success rate")
-    for i, fn in enumerate(fns_s):
-        ax2.plot(fps_s, grid[i], "o-", label=f"FN rate {fn:g}")
+    # Success against whichever rate the sweep varies: FP (one line per FN rate) unless only FN varies.
+    along_fn = len(fps_s) == 1 and len(fns_s) > 1
+    if along_fn:
+        ax2.plot(fns_s, grid[:, 0], "o-", label=f"FP rate {fps_s[0]:g}")
+    else:
+        for i, fn in enumerate(fns_s):
+            ax2.plot(fps_s, grid[i], "o-", label=f"FN rate {fn:g}")
     base = table["base"]["success"]
     if base is not None:
         ax2.axhline(base, color="gray", linestyle="--", label="policy alone")
-    ax2.set_xlabel("false-positive rate")
+    ax2.set_xlabel("false-negative rate" if along_fn else "false-positive rate")
     ax2.set_ylabel("success rate")
     ax2.set_ylim(-0.02, 1.02)
     ax2.grid(alpha=0.3)
