@@ -94,9 +94,9 @@ def test_per_task_table_names_where_the_mistakes_are(tmp_path, capsys):
     from _verifier_cases import write_cases
 
     data = write_cases(tmp_path / "cases", 6, tasks=("libero_10/0", "libero_10/2"), inits=2)
-    labels = {c.row["task"]: [] for c in ds.iter_cases(data)}
+    labels: dict[str, list[bool]] = {}
     for c in ds.iter_cases(data):
-        labels[c.row["task"]].append(c.label)
+        labels.setdefault(c.row["task"], []).append(c.label)
     result = _bench(capsys, "--verifier", "noisy", "--false-positive", "1", "--data", str(data),
                     "--out", str(tmp_path / "t.md"))
     for task, truth in labels.items():  # every failure called a success, task by task
