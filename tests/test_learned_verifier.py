@@ -23,8 +23,12 @@ from seal.verify.learned import DEFAULT_CHECKPOINT, LearnedVerifier, load_checkp
 torch = pytest.importorskip("torch")
 from seal.train.verifier import VerifierTrainConfig, split, load_arrays, train_verifier  # noqa: E402
 
-CFG = VerifierTrainConfig(steps=120, batch_size=32, image_size=32, lr=3e-3, holdout_tasks=("libero_10/1",),
-                          holdout_inits=0.25, eval_every=40)
+# 300 steps: a run of this recipe learns the text binding somewhere between 60 and 240 steps, and where
+# depends on the CPU's kernels (oneDNN picks other convolution code on other ISAs, docs/decisions.md):
+# at 120 steps one seed sat at 0.73 on one machine and 1.0 on another. At 300, ten seeds (with and
+# without oneDNN) all reach 1.0.
+CFG = VerifierTrainConfig(steps=300, batch_size=32, image_size=32, lr=3e-3, holdout_tasks=("libero_10/1",),
+                          holdout_inits=0.25, eval_every=100)
 
 
 @pytest.fixture(scope="module")
@@ -50,7 +54,7 @@ def test_training_learns_text_conditioned_success_and_reports_both_holdouts(run)
                  "loss_curve.png", "manifest.json"):
         assert (out / name).is_file(), name
     rows = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
-    assert rows[-1]["step"] == 120 and rows[0]["loss"] > rows[-1]["loss"]
+    assert rows[-1]["step"] == CFG.steps and rows[0]["loss"] > rows[-1]["loss"]
     assert (out / "model.safetensors").stat().st_size < 20e6
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["files"]["model.safetensors"]["bytes"] == (out / "model.safetensors").stat().st_size
@@ -160,27 +164,89 @@ def test_ema_checkpoints_the_average_and_resumes_exactly(data, tmp_path):
         train_verifier(data, tmp_path / "bad", VerifierTrainConfig(**{**cfg.__dict__, "ema": 1.5}))
 
 
+def _copy(out, dst, *, reseal_after=None):
+    """A copy of a trained checkpoint; ``reseal_after(dst)`` edits it and the manifest is rewritten to
+    vouch for the edit (a consistent checkpoint that is wrong inside)."""
+    from seal.checkpoint import write_manifest
+    from seal.verify.learned import FILES, KIND
+
+    shutil.copytree(out, dst, ignore=shutil.ignore_patterns("*.npz", "train_state.pt"))
+    if reseal_after:
+        reseal_after(dst)
+        write_manifest(dst, kind=KIND, files=list(FILES))
+    return dst
+
+
 def test_bad_checkpoints_are_refused_with_what_is_wrong(run, tmp_path):
+    from seal.steer.method import MethodSpec
+
     out, _ = run
-    bad = tmp_path / "truncated"
-    shutil.copytree(out, bad, ignore=shutil.ignore_patterns("*.npz", "train_state.pt"))
+    bad = _copy(out, tmp_path / "truncated")
     data = (bad / "model.safetensors").read_bytes()
     (bad / "model.safetensors").write_bytes(data[: len(data) // 2])
-    with pytest.raises(InvalidInput, match="model.safetensors"):
+    with pytest.raises(InvalidInput, match="model.safetensors is .* bytes but the manifest says"):
         LearnedVerifier(bad)
-    wrong = tmp_path / "wrong"
-    shutil.copytree(out, wrong, ignore=shutil.ignore_patterns("*.npz", "train_state.pt"))
-    config = json.loads((wrong / "config.json").read_text())
-    config["widths"] = [32, 64, 96, 256]
-    (wrong / "config.json").write_text(json.dumps(config))
+    flipped = _copy(out, tmp_path / "flipped")
+    blob = bytearray(data)
+    blob[-100] ^= 0x01  # one bit of one weight: same size, only the digest can tell
+    (flipped / "model.safetensors").write_bytes(bytes(blob))
+    with pytest.raises(InvalidInput, match="does not match the sha256"):
+        LearnedVerifier(flipped)
+    with pytest.raises(InvalidInput, match="does not match the sha256"):  # nor is it filed under a name
+        MethodSpec(method="seal", verifier=f"learned:{flipped}").config_hash
+    digest = _copy(out, tmp_path / "digest")
+    manifest = json.loads((digest / "manifest.json").read_text())
+    manifest["files"]["config.json"]["sha256"] = "0" * 64
+    (digest / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(InvalidInput, match="config.json does not match the sha256"):
+        LearnedVerifier(digest)
+    gone = _copy(out, tmp_path / "gone")
+    (gone / "manifest.json").unlink()
+    with pytest.raises(InvalidInput, match="manifest.json is missing"):
+        LearnedVerifier(gone)
+
+    def widen(d):
+        config = json.loads((d / "config.json").read_text())
+        config["widths"] = [32, 64, 96, 256]
+        (d / "config.json").write_text(json.dumps(config))
+
     with pytest.raises(InvalidInput, match="shape"):
-        LearnedVerifier(wrong)
-    del config["vocab"]
-    (wrong / "config.json").write_text(json.dumps(config))
+        LearnedVerifier(_copy(out, tmp_path / "wrong", reseal_after=widen))
+
+    def no_vocab(d):
+        config = json.loads((d / "config.json").read_text())
+        del config["vocab"]
+        (d / "config.json").write_text(json.dumps(config))
+
     with pytest.raises(InvalidInput, match="vocab"):
-        LearnedVerifier(wrong)
+        LearnedVerifier(_copy(out, tmp_path / "novocab", reseal_after=no_vocab))
     with pytest.raises(InvalidInput, match="no learned-verifier checkpoint"):
         LearnedVerifier(tmp_path / "nothing")
+
+
+def test_non_finite_probabilities_are_errors_not_failures(run, data, tmp_path):
+    """Weights of 0xFF bytes (NaN) in a checkpoint whose manifest vouches for them: every verdict is an
+    unknown with an error, counted as such, and a trace of it is still strict JSON."""
+    from seal.steer.trace import Trace, read_trace
+
+    out, _ = run
+
+    def poison(d):
+        size = (d / "model.safetensors").stat().st_size
+        with open(d / "model.safetensors", "r+b") as f:
+            header = 8 + int.from_bytes(f.read(8), "little")
+            f.seek(header)
+            f.write(b"\xff" * (size - header))
+
+    verifier = LearnedVerifier(_copy(out, tmp_path / "nan", reseal_after=poison))
+    verdicts = verifier.verify_batch(_requests(data, 3))
+    assert [v.success for v in verdicts] == [None] * 3
+    assert all("not finite" in v.extra["error"] for v in verdicts)
+    with Trace(tmp_path / "trace.jsonl") as trace:
+        trace.write("candidate", score=float("nan"), verdict={"score": float("inf"), "raw": verdicts[0].raw})
+    (event,) = read_trace(tmp_path / "trace.jsonl")
+    assert event["score"] is None and event["verdict"]["score"] is None
+    assert "NaN" not in (tmp_path / "trace.jsonl").read_text()
 
 
 def test_without_a_shipped_checkpoint_plain_learned_says_how_to_make_one(tmp_path, monkeypatch):

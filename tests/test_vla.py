@@ -169,41 +169,60 @@ def test_checkpoint_round_trip_and_export(tok, tmp_path):
 
 
 def test_bad_checkpoints_say_what_is_wrong(tok, tmp_path):
+    from seal.checkpoint import file_digests
+
     model = VLAModel(tiny(tok))
     good = save_checkpoint(tmp_path / "good", model, tok)
     weights = (good / "model.safetensors").read_bytes()
 
-    def variant(name, *, weights_bytes=None, config=None, manifest_edit=None):
+    def variant(name, *, weights_bytes=None, config=None, manifest_edit=None, reseal=False):
+        """A copy with its files changed; ``reseal``: the manifest vouches for the changed files (a
+        consistent checkpoint that is wrong inside, which the deeper checks must catch)."""
         d = save_checkpoint(tmp_path / name, model, tok)
         if weights_bytes is not None:
             (d / "model.safetensors").write_bytes(weights_bytes)
         if config is not None:
             (d / "config.json").write_text(json.dumps(config))
+        m = json.loads((d / "manifest.json").read_text())
+        if reseal:
+            for f, entry in m["files"].items():
+                entry.update(sha256=file_digests(d / f)[0], bytes=(d / f).stat().st_size)
         if manifest_edit:
-            m = json.loads((d / "manifest.json").read_text())
             manifest_edit(m)
-            (d / "manifest.json").write_text(json.dumps(m))
+        (d / "manifest.json").write_text(json.dumps(m))
         return d
 
     with pytest.raises(InvalidInput, match="truncated"):
         load_checkpoint(variant("cut", weights_bytes=weights[: len(weights) // 2]))
-    unchecked = lambda m: (m.pop("weights_bytes"), m.pop("weights_sha256"))
+    flipped = bytearray(weights)
+    flipped[len(flipped) // 2] ^= 0xFF  # same size, one byte off: only the digest can tell
+    with pytest.raises(InvalidInput, match="does not match the sha256"):
+        load_checkpoint(variant("flip", weights_bytes=bytes(flipped)))
+    with pytest.raises(InvalidInput, match="does not match the sha256"):
+        load_checkpoint(variant("digest", manifest_edit=lambda m: m["files"]["model.safetensors"].update(sha256="0" * 64)))
+    with pytest.raises(InvalidInput, match="lists no files"):  # an old-style manifest vouches for nothing
+        load_checkpoint(variant("nofiles", manifest_edit=lambda m: m.pop("files")))
+    with pytest.raises(InvalidInput, match="does not vouch for tokenizer.json"):
+        load_checkpoint(variant("partial", manifest_edit=lambda m: m["files"].pop("tokenizer.json")))
     with pytest.raises(InvalidInput, match="not a readable safetensors file"):
-        load_checkpoint(variant("cut2", weights_bytes=weights[:100], manifest_edit=unchecked))
+        load_checkpoint(variant("cut2", weights_bytes=weights[:100], reseal=True))
     wider = {**model.cfg.to_dict(), "d_expert": 64}
     with pytest.raises(InvalidInput, match=r"does not fit config.json: tensor 'expert\.action_in\.bias' has shape \[32\], "
                        r"the config wants \[64\].*more"):
-        load_checkpoint(variant("shape", config=wider))
+        load_checkpoint(variant("shape", config=wider, reseal=True))
     deeper = {**model.cfg.to_dict(), "n_layers": 3}
     with pytest.raises(InvalidInput, match=r"tensor 'blocks\.2\.attn\.qkv\.weight' is missing"):
-        load_checkpoint(variant("depth", config=deeper))
+        load_checkpoint(variant("depth", config=deeper, reseal=True))
     with pytest.raises(InvalidInput, match="unknown VLA config field"):
-        load_checkpoint(variant("field", config={**model.cfg.to_dict(), "colour": 1}))
+        load_checkpoint(variant("field", config={**model.cfg.to_dict(), "colour": 1}, reseal=True))
     with pytest.raises(InvalidInput, match="vocab_size"):
-        load_checkpoint(variant("vocab", config={**model.cfg.to_dict(), "vocab_size": tok.vocab_size + 1}))
+        load_checkpoint(variant("vocab", config={**model.cfg.to_dict(), "vocab_size": tok.vocab_size + 1}, reseal=True))
     (tmp_path / "torn").mkdir()
     with pytest.raises(InvalidInput, match="manifest.json is missing"):
         load_checkpoint(tmp_path / "torn")
+    (good / "manifest.json").unlink()
+    with pytest.raises(InvalidInput, match="manifest.json is missing"):
+        load_checkpoint(good)
 
 
 # ---------------------------------------------------------------------------------------- training
@@ -394,3 +413,27 @@ def test_a_vla_runs_in_the_render_model_it_was_trained_in():
     assert recorded_render([{}]) == {"mode": "stock", "fast_version": None}  # recordings before the field
     with pytest.raises(InvalidInput, match="recorded in different render models"):
         recorded_render([fast, {"render_mode": "stock"}])
+
+
+@pytest.mark.parametrize("command", [
+    ["eval", "--suite", "libero_10", "--tasks", "5", "--methods", "base", "--trials", "1", "--db", "{tmp}/r.db"],
+    ["run", "--task", "5", "--method", "base", "--out", "{tmp}/run"],
+    ["serve", "--port", "0"],
+])
+def test_a_damaged_shipped_checkpoint_is_refused_on_every_path(command, tmp_path, capsys):
+    """One flipped bit in a copy of the shipped twin: refused with exit 2 before anything is run,
+    stored or served (the method's identity comes from the checked bytes, not the manifest)."""
+    import shutil
+
+    from seal.cli import main
+    from seal.policies.vla.locate import SHIPPED
+
+    damaged = tmp_path / "damaged"
+    shutil.copytree(SHIPPED["twin"], damaged)
+    blob = bytearray((damaged / "model.safetensors").read_bytes())
+    blob[-50] ^= 0x01
+    (damaged / "model.safetensors").write_bytes(bytes(blob))
+    argv = [a.replace("{tmp}", str(tmp_path)) for a in command] + ["--policy", f"vla:{damaged}"]
+    assert main(argv) == 2
+    assert "does not match the sha256" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["damaged"]  # no database, no run folder

@@ -13,6 +13,11 @@ class SimulationError(SealError, RuntimeError):
     """The physics became unstable (NaN/Inf state). Episodes end as `sim_error`."""
 
 
+class PolicyError(SealError, RuntimeError):
+    """A policy answered with something no world can execute (non-finite actions): broken weights or
+    inputs. It ends the episode as an error, never as a silent failure."""
+
+
 class WorkerCrashed(SealError, RuntimeError):
     """A pool worker process died while it held the env that this result belongs to."""
 

@@ -19,7 +19,6 @@ from __future__ import annotations
 import hashlib
 import json
 from dataclasses import asdict, dataclass, field, fields
-from functools import lru_cache
 from pathlib import Path
 
 from seal.errors import InvalidInput
@@ -234,18 +233,10 @@ def _show(value) -> str:
 
 
 def checkpoint_digest(path: str) -> str:
-    """sha1 of a value checkpoint's bytes (a run directory means its checkpoint.pt)."""
-    p = Path(path)
-    p = p / "checkpoint.pt" if p.is_dir() else p
-    if not p.is_file():
-        raise InvalidInput(f"no V-GPS checkpoint at {p}; train one with `seal train value`")
-    stat = p.stat()
-    return _digest(str(p.resolve()), stat.st_mtime_ns, stat.st_size)
+    """What names a value checkpoint (a run directory or a file in it): its verified bytes."""
+    from seal.steer.scoring import value_digest
 
-
-@lru_cache(maxsize=16)
-def _digest(path: str, mtime_ns: int, size: int) -> str:  # cached: labels and hashes ask often
-    return hashlib.sha1(Path(path).read_bytes()).hexdigest()[:12]
+    return value_digest(path)
 
 
 # ---- text -> spec (the CLI's flags and `seal eval --methods`) ------------------------------------

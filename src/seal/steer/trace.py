@@ -9,6 +9,7 @@ overlap and early exit can be read off directly.
 from __future__ import annotations
 
 import json
+import math
 import time
 from pathlib import Path
 
@@ -27,7 +28,8 @@ class Trace:
             if fields.get(key):
                 fields[key] = round(fields[key] - self._t0, 4)
         record = {"event": event, "t": round(time.perf_counter() - self._t0, 4), **fields}
-        self._file.write(json.dumps(record, default=_plain) + "\n")
+        # strict JSON: a non-finite number (a broken model's score) is written as null, never as a bare NaN
+        self._file.write(json.dumps(_finite(record), default=_plain, allow_nan=False) + "\n")
         self._file.flush()  # a crash keeps everything up to the last event
 
     def on_event(self, event: str, fields: dict) -> None:
@@ -58,6 +60,18 @@ def read_trace(path: Path, *, strict: bool = True) -> list[dict]:
             if strict:
                 raise
     return events
+
+
+def _finite(obj):
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    if hasattr(obj, "tolist") and not isinstance(obj, (str, bytes)):
+        return _finite(obj.tolist())
+    return obj
 
 
 def _plain(obj):

@@ -31,7 +31,7 @@ def split_episodes(n: int, holdout: float, seed: int) -> tuple[list[int], list[i
 def train_value_on_dataset(dataset: Path, out: Path, *, goals: str, holdout: float, cfg,
                            progress=None) -> dict:
     from seal.datasets import open_dataset
-    from seal.train.vgps import ValueNets, evaluate_value, train_value
+    from seal.train.vgps import evaluate_value, load_scorer_nets, train_value
 
     if goals not in GOAL_KINDS:
         raise InvalidInput(f"unknown --goals {goals!r}; valid: {', '.join(GOAL_KINDS)}")
@@ -49,10 +49,7 @@ def train_value_on_dataset(dataset: Path, out: Path, *, goals: str, holdout: flo
                "heldout_episodes": held_eps, "train_transitions": len(train), "last": last,
                "reward_rate": round(float(train.reward.mean()), 4)}
     if held is not None:
-        import torch
-
-        nets = ValueNets(cfg)
-        nets.load_state_dict(torch.load(out / "checkpoint.pt", weights_only=False)["nets"])
+        nets, _ = load_scorer_nets(out)
         summary["heldout"] = evaluate_value(nets, held, cfg)
         summary["train_fit"] = evaluate_value(nets, train, cfg)
     (out / "summary.json").write_text(json.dumps(summary, indent=2))

@@ -77,6 +77,45 @@ class VerifierTrainConfig:
     eval_every: int = 200
     save_every_s: float = 300.0
 
+    def __post_init__(self) -> None:
+        """Refuse settings that would fail minutes later (after the images are decoded) or train
+        something other than asked; every message names the field, the value and what is valid."""
+
+        def integer(name: str, low: int, high: int | None = None, what: str = "") -> None:
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low or (high is not None
+                                                                                          and v > high):
+                valid = f">= {low}" if high is None else f"in {low}..{high}"
+                raise InvalidInput(f"{name} must be an integer {valid}{what}, got {v!r}")
+
+        def real(name: str, ok, valid: str) -> None:
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.number)) or not ok(float(v)):
+                raise InvalidInput(f"{name} must be {valid}, got {v!r}")
+
+        integer("steps", 0, what=" (0: the initial weights)")
+        integer("batch_size", 1)
+        real("lr", lambda v: 0 < v < math.inf, "a finite number > 0")
+        real("weight_decay", lambda v: 0 <= v < math.inf, "a finite number >= 0")
+        integer("image_size", 8, ds.IMAGE_SIZE, f" (the cases are {ds.IMAGE_SIZE} px)")
+        if isinstance(self.holdout_tasks, str) or not all(isinstance(t, str) for t in self.holdout_tasks):
+            raise InvalidInput(f"holdout_tasks must be a tuple of task keys like 'libero_10/1', got "
+                               f"{self.holdout_tasks!r}")
+        real("holdout_inits", lambda v: 0 <= v < 1, "in [0, 1) (a fraction of each task's init states)")
+        integer("seed", 0)
+        if self.train_seed is not None:
+            integer("train_seed", 0, what=" or None")
+        integer("shift", 0, self.image_size - 1, " (pixels at image_size)")
+        real("jitter", lambda v: 0 <= v < 1,
+             "in [0, 1) (brightness/contrast factors in [1 - jitter, 1 + jitter]; 0: off)")
+        if self.lr_schedule not in ("constant", "cosine"):
+            raise InvalidInput(f"lr schedule {self.lr_schedule!r} is not one of: constant, cosine")
+        if isinstance(self.ema, bool) or not isinstance(self.ema, (int, float, np.number)) or not 0 <= self.ema < 1:
+            raise InvalidInput(f"ema decay must be in [0, 1) (0: off; e.g. 0.999), got {self.ema!r}")
+        integer("log_every", 1)
+        integer("eval_every", 1)
+        real("save_every_s", lambda v: v >= 0, "a number of seconds >= 0")
+
     def identity(self) -> dict:
         """What a resumed run must share with the run it continues."""
         d = asdict(self)
@@ -355,17 +394,15 @@ def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig,
     """Train (or continue training) into ``out``; returns the summary written to metrics.json.
 
     ``progress(stage, done, total, info)``: stage "load" then "train"."""
-    cfg.lr_at(0)  # bad settings fail before the images are decoded (minutes for a full collection)
-    if not 0.0 <= cfg.ema < 1.0:
-        raise InvalidInput(f"ema decay must be in [0, 1) (0: off; e.g. 0.999), got {cfg.ema}")
+    # (the settings were checked when cfg was made: bad ones fail before the images are decoded)
     if threads:
         torch.set_num_threads(threads)
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     datas = [Path(data)] if isinstance(data, (str, Path)) else [Path(d) for d in data]
     arrays, fingerprint = load_arrays(datas, cfg.image_size, cache_dir=out,
                                       progress=(lambda s, d, t: progress("load", d, t, "")) if progress else None)
     parts = split(arrays, cfg)
+    out.mkdir(parents=True, exist_ok=True)  # not before: data that cannot be used leaves no empty run directory
     train_idx = parts["train"]
     state_path = out / STATE
     if state_path.is_file():
@@ -403,9 +440,10 @@ def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig,
                 "heldout_inits": evaluate(judged, arrays, parts["heldout_inits"], vocab, max_words, threshold),
                 "heldout_tasks": evaluate(judged, arrays, parts["heldout_tasks"], vocab, max_words, threshold)}
 
-    def checkpoint() -> None:
+    def checkpoint(manifest: dict | None = None) -> None:
         config["training"] = {"step": step, "data_fingerprint": fingerprint, "config": cfg.identity()}
-        save_checkpoint(out, judged, config)
+        save_checkpoint(out, judged, config, manifest or {"step": step, "data": ",".join(map(str, datas)),
+                                                          "data_fingerprint": fingerprint})
         _save_state(out, {"identity": json.dumps(cfg.identity()), "data": fingerprint, "step": step,
                           "optimizer": opt.state_dict()} | ({"raw": net.state_dict()} if cfg.ema else {}))
 
@@ -448,33 +486,25 @@ def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig,
                 last_save = time.monotonic()
             if progress:
                 progress("train", step, cfg.steps, info)
-    checkpoint()
     result = summary(final=True)
+    checkpoint(manifest_of(result, command))
     (out / "metrics.json").write_text(json.dumps(result, indent=1))
     plot_loss(out)
-    write_manifest(out, result, command)
     return result
 
 
-def write_manifest(out: Path, result: dict, command: str = "") -> Path:
-    """``manifest.json``: what a shipped checkpoint is (files with sha256 and size, the data it
-    was trained on, its held-out figures). Shipping = copying model.safetensors, config.json and
-    manifest.json into ``seal/verify/checkpoints/learned/``."""
-    files = {}
-    for name in ("model.safetensors", "config.json"):
-        data = (out / name).read_bytes()
-        files[name] = {"sha256": hashlib.sha256(data).hexdigest(), "bytes": len(data)}
+def manifest_of(result: dict, command: str = "") -> dict:
+    """What a finished run's manifest says beside its files' digests: the data it was trained on and
+    its held-out figures. Shipping = copying model.safetensors, config.json and manifest.json into
+    ``seal/verify/checkpoints/learned/``."""
 
     def headline(m):
         return None if not m else {k: m[k] for k in ("n", "accuracy", "precision", "recall", "f1")}
 
-    manifest = {"model": "seal-learned-verifier", "files": files, "step": result["step"], "data": result["data"],
-                "data_fingerprint": result["data_fingerprint"], "split": result["split"],
-                "holdout_tasks": result["holdout_tasks"], "heldout_inits": headline(result["heldout_inits"]),
-                "heldout_tasks": headline(result["heldout_tasks"]),
-                "command": command or "seal train verifier (see docs/verifier.md)"}
-    (out / "manifest.json").write_text(json.dumps(manifest, indent=1))
-    return out / "manifest.json"
+    return {"step": result["step"], "data": result["data"], "data_fingerprint": result["data_fingerprint"],
+            "split": result["split"], "holdout_tasks": result["holdout_tasks"],
+            "heldout_inits": headline(result["heldout_inits"]), "heldout_tasks": headline(result["heldout_tasks"]),
+            "command": command or "seal train verifier (see docs/verifier.md)"}
 
 
 def plot_loss(out: Path) -> Path | None:

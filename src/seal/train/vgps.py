@@ -11,9 +11,12 @@ state, the executed chunk (5 x 7), and the goal text as hashed word/bigram bucke
 by an EmbeddingBag (no pretrained language model can be downloaded here; words never seen in
 training land in untrained buckets, which is exactly the OOD weakness the paper points out).
 
-`train_value` writes ``checkpoint.pt`` every ``save_every`` updates (atomically) and a metrics
-JSONL as it goes; running it again on the same directory continues from the checkpoint.
-`VGPSScorer` loads a checkpoint and implements the steering engine's `ChunkScorer`.
+`train_value` writes, every ``save_every`` updates, the scorer's checkpoint (``value.safetensors``
++ ``value.json`` + ``manifest.json``, `seal.checkpoint`) and the training state (``checkpoint.pt``:
+target networks, optimizer, generators; tensors and plain values only, read with
+``weights_only=True``), each atomically, and a metrics JSONL as it goes; running it again on the
+same directory continues from them. `VGPSScorer` loads a checkpoint (checked against its manifest)
+and implements the steering engine's `ChunkScorer`.
 """
 
 from __future__ import annotations
@@ -29,8 +32,10 @@ from pathlib import Path
 
 import numpy as np
 
+from seal.checkpoint import atomic_write, verify, write_manifest
 from seal.errors import InvalidInput
 from seal.policies.base import ACTION_HORIZON
+from seal.steer.scoring import VALUE_CONFIG, VALUE_FILES, VALUE_KIND, VALUE_WEIGHTS, value_directory
 from seal.train.transitions import IMAGE_SIDE, Transitions, chunk_of, downsample
 
 try:
@@ -203,7 +208,7 @@ def train_value(data: Transitions, out: Path, cfg: IQLConfig, *, progress=None, 
     step = 0
     ckpt_path = out / CHECKPOINT
     if ckpt_path.exists():
-        ckpt = torch.load(ckpt_path, weights_only=False)
+        ckpt = torch.load(ckpt_path, weights_only=True)
         saved = {k: v for k, v in ckpt["config"].items() if k not in ("steps", "save_every", "log_every")}
         mine = {k: v for k, v in asdict(cfg).items() if k not in ("steps", "save_every", "log_every")}
         if saved != mine or ckpt["data"] != fingerprint:
@@ -228,18 +233,48 @@ def train_value(data: Transitions, out: Path, cfg: IQLConfig, *, progress=None, 
                 log.write(json.dumps(last) + "\n")
                 log.flush()
             if step % cfg.save_every == 0 or step == cfg.steps:
-                _save(ckpt_path, {"config": asdict(cfg), "data": fingerprint, "step": step, "image_size": image_size,
-                                  "nets": nets.state_dict(), "target": target.state_dict(), "opt": opt.state_dict(),
-                                  "rng": rng.bit_generator.state, "gen": gen.get_state()})
+                meta = {"config": asdict(cfg), "data": fingerprint, "step": step, "image_size": image_size}
+                save_scorer(out, nets, meta)
+                _save(ckpt_path, meta | {"nets": nets.state_dict(), "target": target.state_dict(),
+                                         "opt": opt.state_dict(), "rng": rng.bit_generator.state,
+                                         "gen": gen.get_state()})
             if progress:
                 progress(step, last)
     return last | {"step": step}
 
 
 def _save(path: Path, obj: dict) -> None:
-    tmp = path.with_suffix(".tmp")
-    torch.save(obj, tmp)
-    tmp.replace(path)  # a crash mid-write leaves the previous checkpoint intact
+    atomic_write(path, lambda p: torch.save(obj, p))  # a crash mid-write leaves the previous one intact
+
+
+def save_scorer(out: Path, nets: ValueNets, meta: dict) -> None:
+    """The scorer's checkpoint in ``out``: weights, their config (``meta``), the manifest last."""
+    from safetensors.torch import save_file
+
+    (out / "manifest.json").unlink(missing_ok=True)  # no manifest = no checkpoint, until this one is complete
+    state = {k: v.detach().contiguous().cpu() for k, v in nets.state_dict().items()}
+    atomic_write(out / VALUE_WEIGHTS, lambda p: save_file(state, str(p), metadata={"format": VALUE_KIND}))
+    atomic_write(out / VALUE_CONFIG, lambda p: p.write_text(json.dumps(meta, indent=1)))
+    write_manifest(out, kind=VALUE_KIND, files=list(VALUE_FILES), extra={"step": meta["step"], "data": meta["data"]})
+
+
+def load_scorer_nets(path: str | Path) -> tuple[ValueNets, dict]:
+    """(networks in eval mode, their config) from a checkpoint directory, checked against its manifest."""
+    from safetensors import SafetensorError
+    from safetensors.torch import load_file
+
+    path = value_directory(path)
+    verify(path, kind=VALUE_KIND, required=VALUE_FILES)
+    try:
+        meta = json.loads((path / VALUE_CONFIG).read_text())
+        nets = ValueNets(IQLConfig(**meta["config"]))
+    except (ValueError, TypeError, KeyError) as exc:
+        raise InvalidInput(f"{path / VALUE_CONFIG} describes no V-GPS model: {exc}") from None
+    try:
+        nets.load_state_dict(load_file(str(path / VALUE_WEIGHTS)))
+    except (SafetensorError, RuntimeError) as exc:
+        raise InvalidInput(f"{path / VALUE_WEIGHTS} does not fit {VALUE_CONFIG}: {exc}") from None
+    return nets.eval(), meta
 
 
 class VGPSScorer:
@@ -254,15 +289,8 @@ class VGPSScorer:
 
     @classmethod
     def load(cls, path: str | Path) -> VGPSScorer:
-        path = Path(path)
-        if path.is_dir():
-            path = path / CHECKPOINT
-        if not path.is_file():
-            raise InvalidInput(f"no V-GPS checkpoint at {path}; train one with `seal train value`")
-        ckpt = torch.load(path, weights_only=False)
-        nets = ValueNets(IQLConfig(**ckpt["config"]))
-        nets.load_state_dict(ckpt["nets"])
-        return cls(nets, source=str(path), image_size=int(ckpt.get("image_size", 224)))
+        nets, meta = load_scorer_nets(path)
+        return cls(nets, source=str(value_directory(path)), image_size=int(meta.get("image_size", 224)))
 
     @torch.no_grad()
     def score(self, obs, chunks: np.ndarray, goal: str) -> np.ndarray:

@@ -13,9 +13,10 @@ The model (`VerifierNet`, trained from scratch by `seal train verifier`, `seal.t
   shift), so the same pixels can mean success for one sub-plan and failure for another;
 - output: one logit; P(success) = sigmoid(logit); success when P >= ``threshold`` (config).
 
-A checkpoint is a directory: ``model.safetensors`` (weights) and ``config.json`` (architecture,
-vocabulary, threshold, training summary). Loading checks both and raises `InvalidInput` naming
-what is wrong (a missing or truncated file, a tensor of the wrong shape, a config key missing).
+A checkpoint is a directory: ``model.safetensors`` (weights), ``config.json`` (architecture,
+vocabulary, threshold, training summary) and ``manifest.json`` (`seal.checkpoint`: both files'
+sha256 and size, written last). Loading checks the files against the manifest before reading
+them, then the config and every tensor's shape, and raises `InvalidInput` naming what is wrong.
 
 `LearnedVerifier` implements the `Verifier` protocol; ``verify_batch`` judges many requests in
 one forward pass, and the async ``verify`` batches the requests that arrive together on its
@@ -32,12 +33,15 @@ from pathlib import Path
 
 import numpy as np
 
+from seal.checkpoint import atomic_write, identity, verify, write_manifest
 from seal.errors import InvalidInput
 from seal.verify.base import Verdict, VerifyRequest
 
 DEFAULT_CHECKPOINT = Path(__file__).resolve().parent / "checkpoints" / "learned"
+KIND = "seal-learned-verifier"
 WEIGHTS = "model.safetensors"
 CONFIG = "config.json"
+FILES = (WEIGHTS, CONFIG)
 ARCH_KEYS = ("image_size", "widths", "embed_dim", "max_words", "vocab")
 PAD, UNK = "<pad>", "<unk>"
 
@@ -160,19 +164,18 @@ def default_config(vocab: WordVocab, image_size: int = 96) -> dict:
 
 
 # ---- checkpoints -------------------------------------------------------------------------------------
-def save_checkpoint(path: Path, net, config: dict) -> None:
-    """``model.safetensors`` + ``config.json`` under ``path``, each written aside and renamed."""
+def save_checkpoint(path: Path, net, config: dict, manifest: dict | None = None) -> None:
+    """``model.safetensors`` + ``config.json`` under ``path``, each written aside and renamed, then
+    the manifest that vouches for both (with ``manifest``'s entries: data, figures, command)."""
     from safetensors.torch import save_file
 
     path = Path(path)
     path.mkdir(parents=True, exist_ok=True)
+    (path / "manifest.json").unlink(missing_ok=True)  # no manifest = no checkpoint, until this one is complete
     state = {k: v.detach().contiguous().cpu() for k, v in net.state_dict().items()}
-    tmp = path / f".{WEIGHTS}.tmp"
-    save_file(state, str(tmp), metadata={"format": "seal-learned-verifier"})
-    tmp.replace(path / WEIGHTS)
-    tmp = path / f".{CONFIG}.tmp"
-    tmp.write_text(json.dumps(config, indent=1))
-    tmp.replace(path / CONFIG)
+    atomic_write(path / WEIGHTS, lambda p: save_file(state, str(p), metadata={"format": KIND}))
+    atomic_write(path / CONFIG, lambda p: p.write_text(json.dumps(config, indent=1)))
+    write_manifest(path, kind=KIND, files=list(FILES), extra={"model": KIND, **(manifest or {})})
 
 
 def load_checkpoint(path: str | Path | None):
@@ -180,13 +183,8 @@ def load_checkpoint(path: str | Path | None):
     from safetensors import SafetensorError
     from safetensors.torch import load_file
 
-    path = Path(path) if path else DEFAULT_CHECKPOINT
-    if path.is_file():
-        path = path.parent
-    if not (path / WEIGHTS).is_file() or not (path / CONFIG).is_file():
-        hint = (" (no checkpoint is shipped in this checkout: train one with `seal train verifier --data DIR "
-                "--out RUN` and pass learned:RUN)") if path == DEFAULT_CHECKPOINT else ""
-        raise InvalidInput(f"no learned-verifier checkpoint at {path}: needs {WEIGHTS} and {CONFIG}{hint}")
+    path = _directory(path)
+    verify(path, kind=KIND, required=FILES)  # every byte checked before any is parsed
     try:
         config = json.loads((path / CONFIG).read_text())
     except (OSError, ValueError) as exc:
@@ -219,18 +217,19 @@ def load_checkpoint(path: str | Path | None):
     return net, config, vocab
 
 
-def checkpoint_digest(path: str | Path | None) -> str:
-    """sha1 of a checkpoint's weights and config (what names a learned verifier in a results store)."""
-    import hashlib
-
+def _directory(path: str | Path | None) -> Path:
     path = Path(path) if path else DEFAULT_CHECKPOINT
     path = path.parent if path.is_file() else path
-    h = hashlib.sha1()
-    for name in (WEIGHTS, CONFIG):
-        if not (path / name).is_file():
-            load_checkpoint(path)  # raises the full explanation
-        h.update((path / name).read_bytes())
-    return h.hexdigest()[:12]
+    if not path.is_dir():
+        raise InvalidInput(f"no learned-verifier checkpoint at {path}: train one with `seal train verifier --data DIR "
+                           f"--out RUN` and pass learned:RUN")
+    return path
+
+
+def checkpoint_digest(path: str | Path | None) -> str:
+    """sha1 of a checkpoint's weights and config, as verified against its manifest (what names a
+    learned verifier in a results store; a damaged copy is refused, never filed under its name)."""
+    return identity(_directory(path), kind=KIND, required=FILES, files=FILES, algorithm="sha1")
 
 
 # ---- the verifier ------------------------------------------------------------------------------------
@@ -280,9 +279,15 @@ class LearnedVerifier:
         start = time.perf_counter()
         probs = self.probabilities(requests)
         each = (time.perf_counter() - start) / len(requests)
-        return [Verdict(bool(p >= self.threshold), f"P(success) = {p:.3f} (threshold {self.threshold:g})",
-                        latency_s=each, raw=f"{p:.6f}", score=float(p), extra={"batch": len(requests)})
-                for p in probs]
+        return [self._verdict(p, each, len(requests)) for p in probs]
+
+    def _verdict(self, p: float, latency_s: float, batch: int) -> Verdict:
+        if not np.isfinite(p):  # broken weights or inputs: no answer, counted as a verifier error, never a "fail"
+            why = f"the learned verifier's P(success) is not finite ({p}); its checkpoint or inputs are broken"
+            return Verdict(None, f"unknown: {why}", latency_s=latency_s, raw=str(p),
+                           extra={"batch": batch, "error": why})
+        return Verdict(bool(p >= self.threshold), f"P(success) = {p:.3f} (threshold {self.threshold:g})",
+                       latency_s=latency_s, raw=f"{p:.6f}", score=float(p), extra={"batch": batch})
 
     async def verify(self, request: VerifyRequest) -> Verdict:
         loop = asyncio.get_running_loop()

@@ -3,49 +3,34 @@
     model.safetensors   weights and the dataset statistics (buffers), fp32 or a 16-bit export
     config.json         `VLAConfig`: what shapes the network
     tokenizer.json      the BPE the model was trained with (`tokenizer.VLATokenizer`)
-    manifest.json       written last (the commit): format, dtype, parameter count, sha256 and size
-                        of model.safetensors, plus what the trainer adds (data command, steps, code
-                        version, held-out figures)
+    manifest.json       written last (the commit, `seal.checkpoint`): kind, format, sha256 and size of
+                        the three files above, dtype, parameter count, plus what the trainer adds
+                        (data command, steps, code version, held-out figures)
 
-Loading trusts nothing: every file must be there and parse, the tokenizer's vocabulary must
-match the config, the weights' sha256 must match the manifest (a truncated or replaced file is
-caught before it is read), and every tensor name and shape must be what the config builds. Each
-failure is an `InvalidInput` naming the file and what is wrong. A 16-bit export is loaded back
+Loading trusts nothing: the manifest must vouch for all three files and each must have the
+recorded size and sha256 (`seal.checkpoint.verify`: a truncated, flipped or replaced file is
+caught before it is parsed), the tokenizer's vocabulary must match the config, and every tensor
+name and shape must be what the config builds. Each failure is an `InvalidInput` naming the file
+and what is wrong. A 16-bit export is loaded back
 to fp32 for inference (CPU bf16 matmuls are not uniformly faster, and fp32 keeps the Euler
 integration of the flow accurate); `export_checkpoint` makes one for shipping.
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
-import os
 from pathlib import Path
 
 import torch
 
+from seal.checkpoint import atomic_write, file_digests, verify, write_manifest
+from seal.checkpoint import read_manifest as _read_manifest
 from seal.errors import InvalidInput
 from seal.policies.vla.model import VLAConfig, VLAModel, count_parameters
 from seal.policies.vla.tokenizer import VLATokenizer
 
-FORMAT = 1
-KIND = "seal-vla"
-WEIGHTS, CONFIG, TOKENIZER, MANIFEST = "model.safetensors", "config.json", "tokenizer.json", "manifest.json"
+from seal.policies.vla.locate import CONFIG, FILES, FORMAT, KIND, MANIFEST, TOKENIZER, WEIGHTS
 DTYPES = {"fp32": torch.float32, "fp16": torch.float16, "bf16": torch.bfloat16}
-
-
-def _write(path: Path, write) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    write(tmp)
-    os.replace(tmp, path)
-
-
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def save_checkpoint(out: Path, model: VLAModel, tokenizer: VLATokenizer, manifest: dict | None = None,
@@ -62,29 +47,21 @@ def save_checkpoint(out: Path, model: VLAModel, tokenizer: VLATokenizer, manifes
     (out / MANIFEST).unlink(missing_ok=True)  # no manifest = no checkpoint, until this one is complete
     tensors = {k: (v.to(DTYPES[dtype]) if v.is_floating_point() else v).detach().cpu().contiguous()
                for k, v in model.state_dict().items()}
-    _write(out / WEIGHTS, lambda p: save_file(tensors, str(p), metadata={"format": str(FORMAT), "kind": KIND}))
-    _write(out / CONFIG, lambda p: p.write_text(json.dumps(model.cfg.to_dict(), indent=2) + "\n"))
-    _write(out / TOKENIZER, lambda p: p.write_text(tokenizer.to_json()))
-    record = {"format": FORMAT, "kind": KIND, "dtype": dtype, "params": count_parameters(model),
-              "weights_sha256": _sha256(out / WEIGHTS), "weights_bytes": (out / WEIGHTS).stat().st_size,
-              **(manifest or {})}
-    _write(out / MANIFEST, lambda p: p.write_text(json.dumps(record, indent=2) + "\n"))
+    atomic_write(out / WEIGHTS, lambda p: save_file(tensors, str(p), metadata={"format": str(FORMAT), "kind": KIND}))
+    atomic_write(out / CONFIG, lambda p: p.write_text(json.dumps(model.cfg.to_dict(), indent=2) + "\n"))
+    atomic_write(out / TOKENIZER, lambda p: p.write_text(tokenizer.to_json()))
+    # weights_sha256 stays beside "files": it has named the model in results stores from the start
+    own = {"dtype": dtype, "params": count_parameters(model), "weights_sha256": file_digests(out / WEIGHTS)[0],
+           "weights_bytes": (out / WEIGHTS).stat().st_size}
+    write_manifest(out, kind=KIND, format=FORMAT, files=list(FILES), extra=own | (manifest or {}))
     return out
 
 
 def read_manifest(path: Path) -> dict:
-    path = Path(path)
-    file = path / MANIFEST
-    if not file.is_file():
-        raise InvalidInput(f"{path} is not a complete VLA checkpoint: {MANIFEST} is missing (an interrupted save, "
-                           f"or not a checkpoint directory)")
-    try:
-        manifest = json.loads(file.read_text())
-    except json.JSONDecodeError as exc:
-        raise InvalidInput(f"{file} is not valid JSON ({exc})") from None
-    if manifest.get("kind") != KIND or manifest.get("format") != FORMAT:
-        raise InvalidInput(f"{file}: kind {manifest.get('kind')!r} format {manifest.get('format')!r}; "
-                           f"this loader reads kind {KIND!r} format {FORMAT}")
+    """The manifest of a VLA checkpoint directory (its files are checked by `load_checkpoint`)."""
+    manifest = _read_manifest(Path(path), kind=KIND)
+    if manifest.get("format") != FORMAT:
+        raise InvalidInput(f"{Path(path) / MANIFEST}: format {manifest.get('format')!r}; this loader reads format {FORMAT}")
     return manifest
 
 
@@ -106,24 +83,14 @@ def load_checkpoint(path: Path, *, device: str | torch.device = "cpu") -> tuple[
     from safetensors import SafetensorError, safe_open
 
     path = Path(path)
-    if not path.is_dir():
-        raise InvalidInput(f"no VLA checkpoint directory at {path}")
-    manifest = read_manifest(path)
-    missing = [name for name in (WEIGHTS, CONFIG, TOKENIZER) if not (path / name).is_file()]
-    if missing:
-        raise InvalidInput(f"VLA checkpoint {path} lacks {', '.join(missing)}")
+    manifest = verify(path, kind=KIND, required=FILES)  # every byte checked before any is parsed
+    read_manifest(path)  # the format
     cfg = read_config(path)
     tokenizer = VLATokenizer.load(path / TOKENIZER)
     if tokenizer.vocab_size != cfg.vocab_size:
         raise InvalidInput(f"{path / TOKENIZER} has {tokenizer.vocab_size} tokens but {CONFIG} says vocab_size "
                            f"{cfg.vocab_size}; they come from different runs")
     weights = path / WEIGHTS
-    size = weights.stat().st_size
-    if "weights_bytes" in manifest and size != manifest["weights_bytes"]:
-        raise InvalidInput(f"{weights} is {size} bytes but the manifest says {manifest['weights_bytes']}: the file "
-                           f"is truncated or was replaced")
-    if "weights_sha256" in manifest and _sha256(weights) != manifest["weights_sha256"]:
-        raise InvalidInput(f"{weights} does not match the sha256 in {MANIFEST}: the file is corrupt or was replaced")
     model = VLAModel(cfg)
     expected = {k: tuple(v.shape) for k, v in model.state_dict().items()}
     try:
@@ -153,7 +120,8 @@ def _shape_problems(expected: dict, found: dict, limit: int = 6) -> list[str]:
 def export_checkpoint(src: Path, dst: Path, *, dtype: str = "bf16", extra: dict | None = None) -> dict:
     """A copy of checkpoint ``src`` with 16-bit weights for shipping; returns its manifest."""
     model, tokenizer, manifest = load_checkpoint(src)
-    keep = {k: v for k, v in manifest.items() if k not in ("dtype", "weights_sha256", "weights_bytes", "params")}
+    keep = {k: v for k, v in manifest.items()
+            if k not in ("kind", "format", "files", "dtype", "weights_sha256", "weights_bytes", "params")}
     save_checkpoint(dst, model, tokenizer, {**keep, **(extra or {}), "exported_from": str(Path(src).resolve())},
                     dtype=dtype)
     return read_manifest(dst)

@@ -11,11 +11,15 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from seal.checkpoint import MANIFEST, identity
 from seal.errors import InvalidInput
 
 SHIPPED_DIR = Path(__file__).resolve().parent / "checkpoints"
 SHIPPED = {"reason": SHIPPED_DIR / "reason", "twin": SHIPPED_DIR / "twin"}
-MANIFEST = "manifest.json"
+FORMAT = 1
+KIND = "seal-vla"
+WEIGHTS, CONFIG, TOKENIZER = "model.safetensors", "config.json", "tokenizer.json"
+FILES = (WEIGHTS, CONFIG, TOKENIZER)  # what a checkpoint's manifest must vouch for
 RUN_CHECKPOINT = "checkpoint"  # inside a `seal train vla` run directory
 
 
@@ -38,17 +42,10 @@ def resolve_checkpoint(spec: str = "") -> Path:
 
 
 def checkpoint_digest(spec: str = "") -> str:
-    """What identifies the weights: the sha256 the manifest records for them (checked against the
-    file when the checkpoint is loaded), so retraining in place is a new method in a store."""
-    path = resolve_checkpoint(spec)
-    try:
-        manifest = json.loads((path / MANIFEST).read_text())
-    except json.JSONDecodeError as exc:
-        raise InvalidInput(f"{path / MANIFEST} is not valid JSON ({exc})") from None
-    sha = manifest.get("weights_sha256")
-    if not isinstance(sha, str) or not sha:
-        raise InvalidInput(f"{path / MANIFEST} records no weights_sha256")
-    return sha[:12]
+    """What identifies the weights: the first 12 hex digits of their sha256, taken from the file
+    after the whole checkpoint was checked against its manifest (a damaged copy is refused, never
+    filed under the genuine one's name), so retraining in place is a new method in a store."""
+    return identity(resolve_checkpoint(spec), kind=KIND, required=FILES, files=(WEIGHTS,))
 
 
 def trained_render(spec: str = "") -> dict:

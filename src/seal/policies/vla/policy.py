@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from seal.errors import InvalidInput, SealError
+from seal.errors import InvalidInput, PolicyError, SealError
 from seal.policies.base import PREDICT_HORIZON, ActionChunk, Reasoning
 from seal.policies.vla.checkpoint import load_checkpoint
 from seal.policies.vla.locate import resolve_checkpoint
@@ -165,6 +165,9 @@ class VLAPolicy:
             # (one distinct observation: the one-row condition serves every row as it is)
             actions = self.model.sample_actions(cond, noise.to(self.model.device)).float()
         actions = actions.clamp(-1.0, 1.0).cpu().numpy()
+        if not np.isfinite(actions).all():  # NaN survives the clamp; a world must never execute it
+            raise PolicyError(f"the VLA ({self.source or 'in memory'}) produced non-finite actions; its weights or "
+                              f"inputs are broken (state finite: {all(np.isfinite(o.state).all() for o in obs_batch)})")
         think = ([False] * len(rows) if cond.think_logit is None
                  else (torch.sigmoid(cond.think_logit.float()) > 0.5).expand(len(rows)).cpu().tolist())
         think = [bool(t) and self._chunks[r] > 0 for t, r in zip(think, rows)]  # first chunk: just wrote <act>
