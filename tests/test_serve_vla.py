@@ -79,7 +79,8 @@ def test_seal_serve_vla_process_answers_the_remote_client_like_the_policy_in_pro
         policy = make_policy("remote", spec, BOOK, seed=0)
         with policy:
             assert policy.info == P.ServerInfo(reasoning=True, batch=True, max_batch=8, control=True, images=True,
-                                               image_size=SIZE, version=P.PROTOCOL_VERSION)
+                                               image_size=SIZE, version=P.PROTOCOL_VERSION,
+                                               max_request_bytes=P.request_limit(8, SIZE))
             assert policy.metadata["policy"] == "vla" and policy.metadata["checkpoint"] == str(ckpts["reason"])
             assert policy.transport == "batched" and policy.thinks and policy.privileged_atoms() is None
             assert policy.image_size == SIZE  # the steering loop renders the cameras at the model's size
@@ -197,3 +198,80 @@ def test_value_method_with_the_vla_twin(ckpts, tmp_path, value_size):
     for i, (_, chunks, scores) in enumerate(seen["scorer"]):
         assert chunks.shape == (3, 16, 7)
         np.testing.assert_array_equal(executed[5 * i: 5 * i + 5], np.clip(chunks[int(np.argmax(scores))][:5], -1, 1))
+
+
+# ---------------------------------------------------------------------------- the server enforces its metadata
+
+
+def _vla_lane(port: int) -> _Lane:
+    lane = _Lane(ClientConfig(port=port, **FAST))
+    lane.connect()
+    return lane
+
+
+def _batch(n: int, size: int = SIZE) -> dict:
+    req = P.batch_request([P.observation_request(_obs(size, i), info=P.ServerInfo()) for i in range(n)])
+    req[P.REASONING] = Reasoning(("pick up the book",), (), "pick up the book").text()
+    return req
+
+
+def test_vla_server_refuses_batches_larger_than_its_max_batch(ckpts):
+    reason = vla_factory(str(ckpts["reason"]))
+    with ServerThread(PolicyServer(reason, vla_info(reason), default_task="")) as srv:  # max_batch 64
+        lane = _vla_lane(srv.port)
+        said = lane.call(_batch(500))
+        assert isinstance(said, str) and "500 observations, but this server takes at most 64 per request" in said
+        assert lane.call(_batch(3))["actions"].shape == (3, 16, 7)  # the same connection still works
+        lane.close()
+
+
+def test_vla_server_refuses_a_non_finite_state_instead_of_answering_nan_actions(ckpts):
+    reason = vla_factory(str(ckpts["reason"]))
+    with ServerThread(PolicyServer(reason, vla_info(reason), default_task="")) as srv:
+        lane = _vla_lane(srv.port)
+        req = P.observation_request(_obs(SIZE), info=P.ServerInfo())
+        for bad in (np.nan, np.inf, -np.inf):
+            state = req[P.STATE].copy()
+            state[0] = bad
+            said = lane.call(dict(req, **{P.STATE: state}))
+            assert isinstance(said, str) and "'observation/state': contains NaN or Inf; expected finite floats" in said
+        reply = lane.call(req)  # the same connection still works
+        assert np.all(np.isfinite(reply["actions"]))
+        lane.close()
+
+
+def test_vla_server_refuses_configure_with_an_unknown_task(ckpts):
+    reason = vla_factory(str(ckpts["reason"]))
+    with ServerThread(PolicyServer(reason, vla_info(reason), default_task="")) as srv:
+        lane = _vla_lane(srv.port)
+        said = lane.call({P.CONTROL: "configure", "task": "libero_10/99"})
+        assert isinstance(said, str) and "unknown task 'libero_10/99'" in said and "valid ids: 0..9" in said
+        assert "SUITE/ID, e.g. 'libero_10/0', with SUITE one of libero_10" in lane.call(
+            {P.CONTROL: "configure", "task": "book"})
+        assert lane.call({P.CONTROL: "configure", "task": BOOK.key})["ok"] is True  # still open; known tasks work
+        lane.close()
+        with pytest.raises(P.PolicyServerError, match="refused 'configure'.*unknown task 'libero_10/99'"):
+            OpenpiPolicy(ClientConfig(port=srv.port, **FAST), task="libero_10/99")
+
+
+def test_vla_server_bounds_frames_and_request_size(ckpts):
+    """Frames are uint8 (224, 224, 3) or (image_size, image_size, 3), both cameras; a
+    request over the advertised max_request_bytes closes its connection (1009), naming the limit,
+    and the server keeps serving."""
+    reason = vla_factory(str(ckpts["reason"]))
+    with ServerThread(PolicyServer(reason, vla_info(reason, max_batch=2), default_task="")) as srv:
+        lane = _Lane(ClientConfig(port=srv.port, **FAST))
+        limit = lane.connect()["seal"]["max_request_bytes"]
+        assert limit == P.request_limit(2, SIZE) == (1 << 20) + 2 * (2 * 224 * 224 * 3 + (1 << 20))
+        req = P.observation_request(_obs(SIZE), info=P.ServerInfo())
+        for image in (np.zeros((512, 512, 3), np.uint8), np.zeros((SIZE, SIZE, 4), np.uint8),
+                      np.zeros((SIZE, SIZE, 3), np.float32), np.zeros((2, SIZE, SIZE, 3), np.uint8)):
+            said = lane.call(dict(req, **{P.IMAGE: image}))
+            assert isinstance(said, str) and "expected uint8 array of shape (224, 224, 3) or (32, 32, 3)" in said
+        assert "missing keys ['observation/image']" in lane.call({k: v for k, v in req.items() if k != P.IMAGE})
+        with pytest.raises(P.PolicyServerError, match=rf"1009 \(message too big\).*exceeds limit of {limit} bytes"):
+            lane.call(dict(req, junk=np.zeros(limit, np.uint8)))  # over the limit: the server does not read it
+        lane.close()
+        lane = _vla_lane(srv.port)  # the server is still up
+        assert lane.call(req)["actions"].shape == (16, 7)
+        lane.close()

@@ -191,6 +191,11 @@ def test_server_names_what_is_wrong_with_a_request_and_keeps_serving(obs):
         bad = dict(req, **{P.IMAGE: np.zeros((100, 100, 3), np.uint8)})
         assert "expected uint8 array of shape (224, 224, 3), got uint8 (100, 100, 3)" in lane.call(bad)
         assert "missing keys ['seal/scene']" in lane.call({k: v for k, v in req.items() if k != P.SCENE})
+        # this server needs no cameras, but what comes is checked: both cameras or neither, each a sane frame
+        wrist_only = {k: v for k, v in req.items() if k != P.IMAGE}
+        wrist_only[P.WRIST] = np.zeros((4096, 64, 3), np.uint8)
+        assert "has 'observation/wrist_image' but not 'observation/image': send both cameras or neither" in lane.call(
+            wrist_only)
         assert "valid: configure, reset, begin" in lane.call({P.CONTROL: "explode"})
         assert lane.call(req)["actions"].shape == (16, 7)  # the same connection still works
         lane.close()
@@ -445,3 +450,157 @@ def test_bad_client_and_engine_settings():
         ClientConfig(transport="pigeon")
     with pytest.raises(InvalidInput, match="check_every >= 5"):
         SteerConfig(check_every=1)
+
+
+# ---------------------------------------------------------------------------- the server enforces what it advertises
+
+
+def _configured_lane(port: int, max_batch: int = 64) -> _Lane:
+    lane = _Lane(ClientConfig(port=port, **FAST))
+    assert lane.connect()["seal"]["max_batch"] == max_batch  # what it advertises
+    assert lane.call({P.CONTROL: "configure", "task": BOOK.key})["ok"] is True
+    return lane
+
+
+def _scene_batch(lane: _Lane, obs, n: int, *, reason: bool = True) -> dict:
+    """n rows of the book task's first observation as one batched request (no cameras: the
+    scripted expert reads the scene), after the server reasoned and began n attempts."""
+    one = {k: v for k, v in P.observation_request(obs, info=P.ServerInfo(privileged=True)).items()
+           if k not in (P.IMAGE, P.WRIST)}
+    if not reason:
+        return P.batch_request([one] * n)
+    reasoning = lane.call(one)[P.REASONING]
+    assert lane.call({P.CONTROL: "begin", "k": n})["ok"] is True
+    return dict(P.batch_request([one] * n), **{P.REASONING: reasoning})
+
+
+def test_server_refuses_batches_larger_than_its_max_batch(obs):
+    with ServerThread(_scripted()) as srv:  # advertises max_batch 64
+        lane = _configured_lane(srv.port)
+        said = lane.call(_scene_batch(lane, obs, 500))
+        assert isinstance(said, str) and "'seal/batch': 500 observations, but this server takes at most 64" in said
+        ok = lane.call(_scene_batch(lane, obs, 2))
+        assert not isinstance(ok, str), ok
+        assert ok["actions"].shape == (2, 16, 7)  # the same connection still works
+        lane.close()
+    with ServerThread(_scripted(max_batch=4)) as srv:
+        lane = _configured_lane(srv.port, max_batch=4)
+        assert "5 observations, but this server takes at most 4" in lane.call(_scene_batch(lane, obs, 5))
+        assert lane.call(_scene_batch(lane, obs, 4))["actions"].shape == (4, 16, 7)
+        lane.close()
+    with ServerThread(_scripted(plain=True)) as srv:  # seal.batch false: no batched requests at all
+        lane = _configured_lane(srv.port)
+        assert "does not take batched requests" in lane.call(_scene_batch(lane, obs, 2, reason=False))
+        lane.close()
+
+
+def test_server_refuses_non_finite_inputs(obs):
+    with ServerThread(_scripted()) as srv:
+        lane = _configured_lane(srv.port)
+        req = P.observation_request(obs, info=P.ServerInfo(privileged=True))
+        state = req[P.STATE].copy()
+        state[3] = np.nan
+        said = lane.call(dict(req, **{P.STATE: state}))
+        assert isinstance(said, str) and "'observation/state': contains NaN or Inf; expected finite floats" in said
+        batch = _scene_batch(lane, obs, 3)
+        batch[P.STATE] = batch[P.STATE].copy()
+        batch[P.STATE][1, 0] = np.inf
+        assert "contains NaN or Inf (rows [1])" in lane.call(batch)
+        scene = P.scene_to_wire(obs.scene)
+        scene["eef_pos"] = np.array([0.0, np.nan, 0.0])
+        assert "seal/scene eef_pos: contains NaN or Inf" in lane.call(dict(req, **{P.SCENE: scene}))
+        scene = P.scene_to_wire(obs.scene)
+        scene["table_z"] = float("inf")
+        assert "seal/scene table_z: contains NaN or Inf" in lane.call(dict(req, **{P.SCENE: scene}))
+        assert lane.call(req)["actions"].shape == (16, 7)  # the same connection still works
+        lane.close()
+
+
+class _NaNPolicy:
+    """A policy that breaks on some inputs: rows whose state starts above 0.5 get NaN actions."""
+
+    thinks = False
+
+    def reset(self, instruction, seed=0):
+        pass
+
+    def begin(self, k):
+        pass
+
+    def reason(self, obs):
+        return Reasoning(("act",), (), "act")
+
+    def act(self, obs_batch, reasoning, rows=None):
+        from seal.policies.base import ActionChunk
+
+        return [ActionChunk(np.full((16, 7), np.nan if o.state[0] > 0.5 else 0.0)) for o in obs_batch]
+
+
+def test_server_never_sends_non_finite_actions():
+    info = P.ServerInfo(batch=True, max_batch=4, control=True, images=False, version=P.PROTOCOL_VERSION)
+    with ServerThread(PolicyServer(lambda task: _NaNPolicy(), info, default_task=BOOK.key)) as srv:
+        lane = _Lane(ClientConfig(port=srv.port, **FAST))
+        lane.connect()
+        states = np.zeros((3, 8), np.float32)
+        states[1, 0] = 1.0
+        said = lane.call({P.BATCH: 3, P.STATE: states, P.PROMPT: "go"})
+        assert isinstance(said, str) and said.startswith("PolicyServerError: the policy produced NaN or Inf actions "
+                                                         "for rows [1]; none are sent")
+        assert "produced NaN or Inf actions;" in lane.call({P.STATE: states[1], P.PROMPT: "go"})
+        reply = lane.call({P.STATE: states[0], P.PROMPT: "go"})  # the same connection still works
+        assert reply["actions"].shape == (16, 7) and np.all(reply["actions"] == 0)
+        lane.close()
+
+
+def test_configure_refuses_unknown_tasks_naming_the_valid_ones():
+    with ServerThread(_scripted()) as srv:
+        lane = _Lane(ClientConfig(port=srv.port, **FAST))
+        lane.connect()
+        said = lane.call({P.CONTROL: "configure", "task": "pick up the book"})
+        assert isinstance(said, str) and said.startswith("InvalidInput: unknown task 'pick up the book'; valid: "
+                                                         "SUITE/ID")
+        assert "libero_10, libero_90, lang_rephrase" in said
+        assert "unknown task 'libero_99/0'; valid: SUITE/ID" in lane.call({P.CONTROL: "configure",
+                                                                            "task": "libero_99/0"})
+        assert "valid ids: 0..9" in lane.call({P.CONTROL: "configure", "task": "libero_10/10"})
+        assert lane.call({P.CONTROL: "configure", "task": BOOK.key})["ok"] is True  # still open
+        lane.close()
+    with pytest.raises(InvalidInput, match="unknown task 'libero_10/99'.*valid ids: 0..9"):
+        PolicyServer(scripted_factory(), scripted_info(), default_task="libero_10/99")
+
+
+def test_seal_serve_refuses_an_unknown_default_task_before_listening(capsys):
+    from seal.cli import main
+
+    assert main(["serve", "--task", "libero_10/99", "--port", "0"]) == 2
+    captured = capsys.readouterr()
+    assert captured.err.splitlines() == ["seal: error: unknown task 'libero_10/99': unknown task id 99 for suite "
+                                         "'libero_10'; valid ids: 0..9"]
+    assert "listening" not in captured.out
+
+
+def test_seal_serve_refuses_a_bad_or_busy_port_in_one_line(capsys):
+    import socket
+
+    from seal.cli import main
+
+    for port in ("70000", "-1"):
+        assert main(["serve", "--port", port]) == 2
+        err = capsys.readouterr().err
+        assert err.splitlines() == [f"seal: error: port must be in 1..65535 (or 0: any free port), got {port}"]
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen(1)
+        port = busy.getsockname()[1]
+        assert main(["serve", "--port", str(port)]) == 2
+        captured = capsys.readouterr()
+        assert captured.err.splitlines() == [f"seal: error: cannot listen on 127.0.0.1:{port}: port {port} is already "
+                                             "in use (another server?); choose another port, or 0 for any free one"]
+        assert "listening" not in captured.out
+        t0 = time.perf_counter()
+        with pytest.raises(InvalidInput, match=f"port {port} is already in use"):
+            with ServerThread(PolicyServer(scripted_factory(), scripted_info(), port=port)):
+                pass
+        assert time.perf_counter() - t0 < 10  # the thread reports it at once, not after its 30 s start timeout
+    with pytest.raises(InvalidInput, match="got 70000"):
+        PolicyServer(scripted_factory(), scripted_info(), port=70000)

@@ -323,13 +323,15 @@ def _cmd_report(args) -> int:
 
 
 def _cmd_serve(args) -> int:
-    from seal.serving.server import POLICIES, PolicyServer, scripted_factory, scripted_info, vla_factory, vla_info
+    from seal.serving.server import (POLICIES, PolicyServer, check_port, scripted_factory, scripted_info, vla_factory,
+                                     vla_info)
 
     name, colon, ckpt = args.policy.partition(":")
     if name not in POLICIES or (colon and name != "vla"):
         raise InvalidInput(f"unknown --policy {args.policy!r} for seal serve; valid: scripted, vla, vla:twin, vla:PATH")
     if args.max_batch < 1:
         raise InvalidInput(f"--max-batch must be >= 1, got {args.max_batch}")
+    check_port(args.port)  # before a checkpoint loads; a port in use is found when the server binds
     api_key = None
     if args.require_api_key:
         api_key = os.environ.get("OPENPI_API_KEY")

@@ -45,6 +45,9 @@ REASONING, THINK = "reasoning", "think"
 SESSION, ROW, ROWS, BATCH, SCENE, CONTROL = ("seal/session", "seal/row", "seal/rows", "seal/batch", "seal/scene",
                                             "seal/control")
 CONTROLS = ("configure", "reset", "begin")
+# the largest request a server reads: both cameras of every row at the larger of 224 and its image
+# size, plus this much per row (state, prompt, reasoning, a privileged scene: ~7 KB) and per request
+ROW_ALLOWANCE_BYTES = 1 << 20
 
 
 class PolicyServerError(SealError, RuntimeError):
@@ -72,6 +75,9 @@ class ServerInfo:
     # openpi's 224 (a client then renders its cameras at it); 224 images are always accepted
     image_size: int = IMAGE_SIZE
     version: int = 0  # 0: not a SEAL server
+    # the largest request message the server reads (bytes; 0: not said). A larger one closes the
+    # connection with code 1009, as websockets' size limit does.
+    max_request_bytes: int = 0
 
     @classmethod
     def from_metadata(cls, metadata: Any) -> "ServerInfo":
@@ -86,7 +92,7 @@ class ServerInfo:
         for f in fields(cls):
             if f.name in seal:
                 value = seal[f.name]
-                want = int if f.name in ("max_batch", "image_size", "version") else bool
+                want = int if f.name in ("max_batch", "image_size", "version", "max_request_bytes") else bool
                 if not isinstance(value, want) or (want is int and isinstance(value, bool)):
                     raise ProtocolError(f"metadata seal.{f.name} must be {want.__name__}, got {value!r}")
                 out[f.name] = value
@@ -95,10 +101,20 @@ class ServerInfo:
             raise ProtocolError(f"metadata seal.max_batch must be >= 1, got {info.max_batch}")
         if not 16 <= info.image_size <= 1024:
             raise ProtocolError(f"metadata seal.image_size must be in 16..1024 px, got {info.image_size}")
+        if info.max_request_bytes < 0:
+            raise ProtocolError(f"metadata seal.max_request_bytes must be >= 0, got {info.max_request_bytes}")
         return info
 
     def to_metadata(self) -> dict:
         return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+def request_limit(max_batch: int, image_size: int = IMAGE_SIZE) -> int:
+    """The request size (bytes) a server with these settings reads at most (``max_request_bytes``):
+    ``max_batch`` rows of two frames at the larger accepted size plus `ROW_ALLOWANCE_BYTES` each,
+    and one allowance for the request itself."""
+    side = max(IMAGE_SIZE, image_size)
+    return ROW_ALLOWANCE_BYTES + max_batch * (2 * side * side * 3 + ROW_ALLOWANCE_BYTES)
 
 
 # ---------------------------------------------------------------------------- reasoning text
@@ -145,11 +161,21 @@ def parse_reasoning(text: Any) -> Reasoning:
 
 
 def _arr(x: Any, what: str, shape: tuple | None = None) -> np.ndarray:
-    """A writable float64 copy (msgpack-numpy hands out read-only views of the frame)."""
-    a = np.array(x, dtype=np.float64)
+    """A writable float64 copy (msgpack-numpy hands out read-only views of the frame), finite."""
+    try:
+        a = np.array(x, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ProtocolError(f"seal/scene {what}: expected numbers, got {type(x).__name__}") from None
     if shape is not None and a.shape != shape:
         raise ProtocolError(f"seal/scene {what}: expected shape {shape}, got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ProtocolError(f"seal/scene {what}: contains NaN or Inf; expected finite numbers")
     return a
+
+
+def _num(x: Any, what: str) -> float:
+    """A finite float from the wire."""
+    return float(_arr(x, what, ()))
 
 
 def _need(d: Any, keys: tuple[str, ...], what: str) -> dict:
@@ -214,7 +240,8 @@ def scene_from_wire(d: Any) -> SceneState:
         boxes = tuple(Box(center=_arr(g["center"], "box.center", (3,)), xmat=_arr(g["xmat"], "box.xmat", (3, 3)),
                           half=_arr(g["half"], "box.half", (3,)))
                       for g in (_need(g, ("center", "xmat", "half"), f"articulations[{n}].geoms") for g in a["geoms"]))
-        arts[n] = Articulation(kind=str(a["kind"]), qpos=float(a["qpos"]), range=_arr(a["range"], "range", (2,)),
+        arts[n] = Articulation(kind=str(a["kind"]), qpos=_num(a["qpos"], f"articulations[{n}].qpos"),
+                               range=_arr(a["range"], "range", (2,)),
                                axis=_arr(a["axis"], "axis", (3,)), anchor=_arr(a["anchor"], "anchor", (3,)),
                                part=_body_from(a["part"], f"articulations[{n}].part"), geoms=boxes)
     sites = {}
@@ -224,10 +251,11 @@ def scene_from_wire(d: Any) -> SceneState:
                         size=_arr(x["size"], f"sites[{n}].size"))
     return SceneState(
         eef_pos=_arr(d["eef_pos"], "eef_pos", (3,)), eef_xmat=_arr(d["eef_xmat"], "eef_xmat", (3, 3)),
-        finger_axis=_arr(d["finger_axis"], "finger_axis", (3,)), gripper_width=float(d["gripper_width"]),
+        finger_axis=_arr(d["finger_axis"], "finger_axis", (3,)),
+        gripper_width=_num(d["gripper_width"], "gripper_width"),
         bodies={n: _body_from(b, f"bodies[{n}]") for n, b in _need(d["bodies"], (), "bodies").items()},
-        sites=sites, joints={n: float(v) for n, v in _need(d["joints"], (), "joints").items()},
-        facts={n: bool(v) for n, v in _need(d["facts"], (), "facts").items()}, table_z=float(d["table_z"]),
+        sites=sites, joints={n: _num(v, f"joints[{n}]") for n, v in _need(d["joints"], (), "joints").items()},
+        facts={n: bool(v) for n, v in _need(d["facts"], (), "facts").items()}, table_z=_num(d["table_z"], "table_z"),
         articulations=arts, joints_of={n: tuple(v) for n, v in _need(d["joints_of"], (), "joints_of").items()},
         arm_qpos=_arr(d["arm_qpos"], "arm_qpos"),
     )
@@ -276,14 +304,21 @@ def _image(req: dict, key: str, lead: tuple, size: int = IMAGE_SIZE) -> np.ndarr
     return img
 
 
-def parse_request(req: Any, *, needs_images: bool, needs_scene: bool, image_size: int = IMAGE_SIZE
-                  ) -> list[Observation]:
-    """Server side: a single or batched request -> observations (validated)."""
+def parse_request(req: Any, *, needs_images: bool, needs_scene: bool, image_size: int = IMAGE_SIZE,
+                  max_batch: int | None = None) -> list[Observation]:
+    """Server side: a single or batched request -> observations (validated: shapes, types, finite
+    values, at most ``max_batch`` rows; ``max_batch=0`` refuses batched requests)."""
     if not isinstance(req, dict):
         raise ProtocolError(f"a request must be a msgpack map, got {type(req).__name__}")
     n = req.get(BATCH)
     if n is not None and (not isinstance(n, int) or isinstance(n, bool) or n < 1):
         raise ProtocolError(f"request {BATCH!r}: expected a positive int, got {n!r}")
+    if n is not None and max_batch == 0:
+        raise ProtocolError(f"request {BATCH!r}: this server does not take batched requests (its metadata has "
+                            "seal.batch false); send one observation per request")
+    if n is not None and max_batch is not None and n > max_batch:
+        raise ProtocolError(f"request {BATCH!r}: {n} observations, but this server takes at most {max_batch} per "
+                            "request (its metadata's seal.max_batch); split them over several requests")
     lead = () if n is None else (n,)
     required = [STATE, PROMPT] + ([IMAGE, WRIST] if needs_images else []) + ([SCENE] if needs_scene else [])
     missing = [k for k in required if k not in req]
@@ -295,6 +330,13 @@ def parse_request(req: Any, *, needs_images: bool, needs_scene: bool, image_size
     if not isinstance(state, np.ndarray) or state.shape != (*lead, STATE_DIM) or state.dtype.kind != "f":
         got = f"{state.dtype} {state.shape}" if isinstance(state, np.ndarray) else type(state).__name__
         raise ProtocolError(f"request {STATE!r}: expected float array of shape {(*lead, STATE_DIM)}, got {got}")
+    if not np.all(np.isfinite(state)):
+        bad = np.flatnonzero(~np.all(np.isfinite(state.reshape(-1, STATE_DIM)), axis=-1)).tolist()
+        raise ProtocolError(f"request {STATE!r}: contains NaN or Inf" + (f" (rows {bad})" if n is not None else "")
+                            + "; expected finite floats")
+    if (IMAGE in req) != (WRIST in req):
+        have, lack = (IMAGE, WRIST) if IMAGE in req else (WRIST, IMAGE)
+        raise ProtocolError(f"request has {have!r} but not {lack!r}: send both cameras or neither")
     images = ((_image(req, IMAGE, lead, image_size), _image(req, WRIST, lead, image_size))
               if IMAGE in req or needs_images else None)
     scenes = None

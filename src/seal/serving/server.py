@@ -5,6 +5,10 @@ frame is a request and gets one reply; errors go back as a text frame. Unlike it
 request (missing key, wrong shape) gets its error message and the connection stays open -
 only an unexpected exception closes it (code 1011), as openpi does.
 
+It enforces what its metadata advertises (docs/serving.md): at most ``max_batch`` rows, frames of
+the advertised sizes, finite inputs, requests up to ``max_request_bytes`` (a larger one closes its
+connection, code 1009), known tasks in ``configure``; and it never sends NaN or Inf actions.
+
 Stateful policies (the scripted expert keeps its plan and per-row random streams) live in
 *sessions*: a client names its session in every message (``seal/session``), so the several
 connections a client opens to send K observations concurrently share one policy. Without a
@@ -15,6 +19,8 @@ one at a time per session, so the event loop keeps reading other connections mea
 from __future__ import annotations
 
 import asyncio
+import dataclasses
+import errno
 import hmac
 import json
 import logging
@@ -44,20 +50,38 @@ PolicyFactory = Callable[[str], Any]  # task key (e.g. "libero_10/0") -> a Reaso
 POLICIES = ("scripted", "vla")  # `seal serve --policy scripted | vla[:PATH]`
 
 
+def check_port(port: Any) -> int:
+    """A TCP port to listen on: 1..65535, or 0 for any free one (the OS picks it)."""
+    if not isinstance(port, int) or isinstance(port, bool) or not 0 <= port <= 65535:
+        raise InvalidInput(f"port must be in 1..65535 (or 0: any free port), got {port!r}")
+    return port
+
+
+def task_spec(task: Any):
+    """The `TaskSpec` a task key ('libero_10/0': suite/id) names; an `InvalidInput` that lists the
+    valid suites and ids otherwise."""
+    from seal.sim.suites import SUITES, get_task
+
+    suite, _, index = str(task).partition("/")
+    if suite not in SUITES or not index.isdigit():
+        raise InvalidInput(f"unknown task {task!r}; valid: SUITE/ID, e.g. 'libero_10/0', with SUITE one of "
+                           f"{', '.join(SUITES)}")
+    try:
+        return get_task(suite, int(index))
+    except InvalidInput as exc:
+        raise InvalidInput(f"unknown task {task!r}: {exc}") from None
+
+
 def scripted_factory(knobs: str = "misaligned", seed: int = 0) -> PolicyFactory:
     """The scripted expert for whatever task a client configures (built through the policy
     registry, like every other policy)."""
     from seal.policies import make_policy
-    from seal.sim.suites import get_task
     from seal.steer.method import MethodSpec
 
     spec = MethodSpec(policy="scripted", knobs=knobs)  # fail on a bad name now, not at the first client
 
     def make(task: str):
-        suite, _, index = str(task).partition("/")
-        if not index.isdigit():
-            raise InvalidInput(f"task must look like 'libero_10/0', got {task!r}")
-        return make_policy("scripted", spec, get_task(suite, int(index)), seed=seed)
+        return make_policy("scripted", spec, task_spec(task), seed=seed)
 
     return make
 
@@ -74,7 +98,7 @@ def vla_factory(ckpt: str = "", seed: int = 0) -> PolicyFactory:
     model, 'twin', or a directory). The weights are loaded once, here, so a missing or broken
     checkpoint fails before the server listens; each session gets its own `VLAPolicy` (its own
     episode seed and per-row noise streams) over the shared model. It reads pixels, not scene
-    state, so the task a client configures is not needed: any string is accepted."""
+    state, so it needs no task; a client that configures one must still name a known task."""
     from seal.policies.vla.checkpoint import load_checkpoint
     from seal.policies.vla.locate import resolve_checkpoint
     from seal.policies.vla.policy import VLAPolicy
@@ -109,7 +133,19 @@ class PolicyServer:
     def __init__(self, factory: PolicyFactory, info: P.ServerInfo, *, host: str = "127.0.0.1", port: int = 0,
                  metadata: dict | None = None, default_task: str | None = None, max_sessions: int = 32,
                  api_key: str | None = None):
-        self.factory, self.info, self.host, self.port = factory, info, host, port
+        """Refuses (`InvalidInput`) what it could not serve as advertised: a port outside 0..65535,
+        ``max_batch < 1``, an image size a client would refuse, an unknown ``default_task``. Unless
+        ``info`` says otherwise, ``max_request_bytes`` is `protocol.request_limit` of its settings."""
+        if info.max_batch < 1:
+            raise InvalidInput(f"max_batch must be >= 1, got {info.max_batch}")
+        if not 16 <= info.image_size <= 1024:
+            raise InvalidInput(f"image_size must be in 16..1024 px, got {info.image_size}")
+        if not info.max_request_bytes:
+            limit = P.request_limit(info.max_batch if info.batch else 1, info.image_size)
+            info = dataclasses.replace(info, max_request_bytes=limit)
+        if default_task:  # '' (the VLA's default): clients that do not configure get a policy without a task
+            task_spec(default_task)
+        self.factory, self.info, self.host, self.port = factory, info, host, check_port(port)
         self._api_key = api_key  # when set, the handshake must carry "Authorization: Api-Key <key>"
         self.metadata = {**(metadata or {}), "seal": info.to_metadata()}
         self.default_task = default_task  # lets a plain openpi client (no configure) use the server
@@ -119,8 +155,15 @@ class PolicyServer:
 
     # ---- running ---------------------------------------------------------------------------
     async def serve(self, stop: asyncio.Future, on_ready: Callable[[int], None] | None = None) -> None:
-        async with ws_server.serve(self._handler, self.host, self.port, compression=None, max_size=None,
-                                   process_request=self._process_request) as server:
+        """Listen until ``stop`` is done. A port in use (or any address that cannot be bound) is an
+        `InvalidInput` naming it. Requests over ``max_request_bytes`` close their connection (1009)."""
+        try:
+            server = await ws_server.serve(self._handler, self.host, self.port, compression=None,
+                                           max_size=self.info.max_request_bytes,
+                                           process_request=self._process_request)
+        except OSError as exc:
+            raise _listen_error(self.host, self.port, exc) from None
+        async with server:
             self.port = server.sockets[0].getsockname()[1]
             if on_ready is not None:
                 on_ready(self.port)
@@ -194,7 +237,7 @@ class PolicyServer:
                                       "'task': 'libero_10/0'}} first")
             await self._configure(session, self.default_task)
         obs = P.parse_request(req, needs_images=self.info.images, needs_scene=self.info.privileged,
-                              image_size=self.info.image_size)
+                              image_size=self.info.image_size, max_batch=self.info.max_batch if self.info.batch else 0)
         n = req.get(P.BATCH)
         rows = P.request_rows(req, n)
         given = req.get(P.REASONING) if self.info.reasoning else None
@@ -205,6 +248,10 @@ class PolicyServer:
             t0 = time.perf_counter()
             reasoning, chunks = await asyncio.to_thread(_infer, session.policy, obs, reasoning, rows)
             infer_ms = (time.perf_counter() - t0) * 1e3
+        bad = [r for r, c in zip(rows, chunks) if not np.all(np.isfinite(c.actions))]
+        if bad:  # never send them: a client would execute them
+            raise P.PolicyServerError("the policy produced NaN or Inf actions" + (f" for rows {bad}" if n else "")
+                                      + "; none are sent (a broken checkpoint, or an input it cannot handle)")
         reply: dict[str, Any] = {"server_timing": {"infer_ms": infer_ms}}
         if n is None:
             reply[P.ACTIONS], reply[P.THINK] = chunks[0].actions, bool(chunks[0].think)
@@ -223,6 +270,7 @@ class PolicyServer:
             task = req.get("task")
             if not isinstance(task, str):
                 raise P.ProtocolError(f"'configure' needs 'task' (a string like 'libero_10/0'), got {task!r}")
+            await asyncio.to_thread(task_spec, task)  # every server refuses an unknown task, even the VLA's
             await self._configure(session, task)
             atoms = session.policy.privileged_atoms() if hasattr(session.policy, "privileged_atoms") else None
             return {"ok": True, "task": task, "privileged_atoms": atoms}
@@ -257,6 +305,13 @@ class PolicyServer:
                 self._sessions.popitem(last=False)
         self._sessions.move_to_end(sid)
         return session
+
+
+def _listen_error(host: str, port: int, exc: OSError) -> InvalidInput:
+    if exc.errno == errno.EADDRINUSE:
+        return InvalidInput(f"cannot listen on {host}:{port}: port {port} is already in use (another server?); "
+                            "choose another port, or 0 for any free one")
+    return InvalidInput(f"cannot listen on {host}:{port}: {exc.strerror or exc}")
 
 
 def _thinks(policy) -> bool:
@@ -304,16 +359,25 @@ class ServerThread:
         self._loop = asyncio.new_event_loop()
         self._ready = threading.Event()
         self._thread = threading.Thread(target=self._run, name="seal-serve", daemon=True)
+        self._error: BaseException | None = None
 
     def _run(self) -> None:
         asyncio.set_event_loop(self._loop)
         self._stop = self._loop.create_future()
-        self._loop.run_until_complete(self.server.serve(self._stop, lambda port: self._ready.set()))
+        try:
+            self._loop.run_until_complete(self.server.serve(self._stop, lambda port: self._ready.set()))
+        except BaseException as exc:  # noqa: BLE001 - e.g. a port in use: raised again by __enter__
+            self._error = exc
+            self._ready.set()
 
     def __enter__(self) -> "ServerThread":
         self._thread.start()
         if not self._ready.wait(30):
             raise RuntimeError("policy server thread did not start within 30 s")
+        if self._error is not None:  # it could not listen
+            self._thread.join()
+            self._loop.close()
+            raise self._error
         return self
 
     @property
