@@ -11,8 +11,8 @@ from collections import defaultdict
 from dataclasses import dataclass, field, replace
 from typing import Callable
 
-from seal.errors import VerifierUnavailable
-from seal.eval.backends import make_backend
+from seal.errors import InvalidInput, VerifierUnavailable
+from seal.eval.backends import BACKENDS, make_backend
 from seal.eval.execute import RunOptions
 from seal.eval.store import ResultStore, TrialRow
 from seal.eval.trials import MethodSpec, TrialSpec, expand
@@ -37,7 +37,10 @@ def plan_eval(store: ResultStore, methods: list[MethodSpec], suites: list[str], 
               trials: int, retry_errors: bool = False) -> tuple[list[TrialSpec], list[TrialSpec]]:
     """(all trials of the command, the ones still to run; with ``retry_errors``, trials stored as
     errors run again)."""
-    every = expand(methods, suites, tasks, trials)
+    return _todo(store, expand(methods, suites, tasks, trials), retry_errors)
+
+
+def _todo(store: ResultStore, every: list[TrialSpec], retry_errors: bool) -> tuple[list[TrialSpec], list[TrialSpec]]:
     done = store.done_keys(errors=not retry_errors)
     return every, [t for t in every if t.key not in done]
 
@@ -45,8 +48,19 @@ def plan_eval(store: ResultStore, methods: list[MethodSpec], suites: list[str], 
 def run_eval(db: str, methods: list[MethodSpec], suites: list[str], tasks: list[int] | None, trials: int, *,
              options: RunOptions, backend: str = "local", workers: int = 1, address: str | None = None,
              on_row: Callable[[TrialRow, int, int], None] | None = None, retry_errors: bool = False) -> EvalSummary:
+    # Everything the arguments decide is checked before the store is opened: a refused command
+    # leaves no database behind.
+    every = expand(methods, suites, tasks, trials)
+    if backend not in BACKENDS:
+        raise InvalidInput(f"unknown backend {backend!r}; valid: {', '.join(BACKENDS)}")
+    for name, value in (("--workers", workers), ("--pool-workers", options.pool_workers)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise InvalidInput(f"{name} must be an integer >= 1, got {value!r}")
+    if options.max_steps is not None and (not isinstance(options.max_steps, int) or options.max_steps < 1):
+        raise InvalidInput(f"--max-steps must be an integer >= 1 (or left out: the suite's limit), "
+                           f"got {options.max_steps!r}")
     with ResultStore(db) as store:
-        every, todo = plan_eval(store, methods, suites, tasks, trials, retry_errors)
+        every, todo = _todo(store, every, retry_errors)
         for m in methods:
             store.register_method(m.config_hash, m.label, m.canonical())
         summary = EvalSummary(db=str(db), planned=len(every), already_done=len(every) - len(todo))

@@ -10,6 +10,7 @@ and refuses a newer schema than it knows.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import sqlite3
 import time
@@ -129,16 +130,42 @@ class ResultStore:
             raise InvalidInput(f"no results database at {self.path}")
         if exists:
             _check_header(self.path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._db = sqlite3.connect(self.path, timeout=30, isolation_level=None)
+        # What this call creates (folders, the file) goes again if it fails: a refused command
+        # leaves nothing behind.
+        made = [p for p in (self.path, *self.path.parents) if not p.exists()]
+        self._db = None
         try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._db = sqlite3.connect(self.path, timeout=30, isolation_level=None)
             if exists:
                 self._check_meta()
+                if create:  # a writer: find a read-only file or folder now, not at the first finished trial
+                    self._db.execute("BEGIN IMMEDIATE")
+                    self._db.execute("ROLLBACK")
             else:
                 self._create()
+        except (OSError, sqlite3.OperationalError) as exc:
+            self._abandon(made)
+            if exists:
+                raise InvalidInput(f"cannot open the results database {self.path} ({exc}): the file and its folder "
+                                   "must be writable (SQLite keeps its log beside the file)") from None
+            raise InvalidInput(f"cannot create the results database {self.path} ({exc}); pass a --db in a folder "
+                               "you can write to") from None
         except BaseException:
-            self._db.close()
+            self._abandon(made)
             raise
+
+    def _abandon(self, made: list[Path]) -> None:
+        if self._db is not None:
+            self._db.close()
+        for p in made:  # the file (and SQLite's side files) first, then its new folders, innermost first
+            with contextlib.suppress(OSError):
+                if p == self.path:
+                    for side in ("-wal", "-shm", "-journal"):
+                        Path(f"{p}{side}").unlink(missing_ok=True)
+                    p.unlink(missing_ok=True)
+                else:
+                    p.rmdir()
 
     # ---- lifecycle ------------------------------------------------------------------------
     def _create(self) -> None:
@@ -153,6 +180,8 @@ class ResultStore:
         try:
             meta = dict(self._db.execute("SELECT key, value FROM seal_meta").fetchall())
         except sqlite3.DatabaseError as exc:  # no such table, malformed file...
+            if _cannot_access(exc):  # a file or folder this process may not write (SQLite's log lives beside it)
+                raise
             raise InvalidInput(f"{self.path} is not a SEAL results database ({exc}); "
                                "pass a new file name or one written by `seal eval`") from None
         if meta.get("magic") != MAGIC:
@@ -263,6 +292,12 @@ class _Transaction:
 
     def __exit__(self, exc_type, *_):
         self.db.execute("ROLLBACK" if exc_type else "COMMIT")
+
+
+def _cannot_access(exc: sqlite3.DatabaseError) -> bool:
+    """SQLite's way of saying a file or folder may not be opened or written (not that it is not ours)."""
+    return isinstance(exc, sqlite3.OperationalError) and any(
+        text in str(exc) for text in ("readonly", "unable to open", "disk I/O"))
 
 
 def _check_header(path: Path) -> None:
