@@ -27,6 +27,11 @@ class Progress(_rich.Progress):
         self._t0 = time.monotonic()
         self._last_log = self._t0
 
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is not None:  # an error or Ctrl-C: its one line is the last word, not a half-done bar
+            self.live.transient = True
+        super().__exit__(exc_type, exc, tb)
+
     def update(self, task_id, **kwargs) -> None:
         super().update(task_id, **kwargs)
         self._maybe_log()

@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
+import signal
+import threading
 import time
 import traceback
 from dataclasses import dataclass
@@ -49,6 +51,9 @@ class SlotResult:
 
 # ---- worker side ----------------------------------------------------------------------------
 def _worker_main(conn: Connection, task: TaskSpec, render_mode: str, physics=None) -> None:
+    # Ctrl-C reaches every process of the terminal's group: the parent handles it (and closes the
+    # pool); a worker stopped mid-step would only print a traceback.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     from seal.sim.world import LiberoWorld
 
     world = LiberoWorld(task, render_mode=render_mode, physics=physics)
@@ -185,7 +190,15 @@ class _Worker:
     def __init__(self, ctx, task: TaskSpec, render_mode: str, physics=None):
         self.conn, child = ctx.Pipe()
         self.process = ctx.Process(target=_worker_main, args=(child, task, render_mode, physics), daemon=True)
-        self.process.start()
+        # Started with SIGINT ignored (inherited by the new interpreter, which keeps ignoring it), so a
+        # Ctrl-C while it imports cannot print a traceback either; the parent's own handler is restored.
+        main = threading.current_thread() is threading.main_thread()
+        previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
+        try:
+            self.process.start()
+        finally:
+            if main and previous is not None:
+                signal.signal(signal.SIGINT, previous)
         child.close()
 
     def wait_ready(self, timeout: float) -> None:
