@@ -5,7 +5,9 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
 import os
+import re
 import sys
 from pathlib import Path
 
@@ -115,8 +117,8 @@ def _cmd_train(args) -> int:
 
     if not args.dataset:
         raise InvalidInput("seal train value needs --dataset (a LeRobot dataset)")
-    cfg = IQLConfig(steps=args.steps or 3000, batch_size=args.batch_size or 128, lr=args.lr or 3e-4, gamma=args.gamma,
-                    expectile=args.expectile, seed=0 if args.seed is None else args.seed)
+    given = {"steps": args.steps, "batch_size": args.batch_size, "lr": args.lr, "seed": args.seed}
+    cfg = IQLConfig(gamma=args.gamma, expectile=args.expectile, **{k: v for k, v in given.items() if v is not None})
     stages = {"load": "reading episodes", "train": "IQL updates"}
     with _stage_bars(stages, lambda m: f"q_loss {m['q_loss']:.4f}" if m and "q_loss" in m else "") as progress:
         summary = train_value_on_dataset(Path(args.dataset), Path(args.out), goals=args.goals,
@@ -133,23 +135,47 @@ def _cmd_verify(args) -> int:
     from seal.sim.suites import parse_task_ids
 
     settings = {k: v for k, v in _method_settings(args).items() if k not in ("k", "rounds", "policy", "knobs")}
+    given = {"k": args.k, "rounds": args.rounds}  # None: CollectOptions' own defaults
     opts = CollectOptions(suite=args.suite, tasks=parse_task_ids(args.suite, args.tasks), per_task=args.per_task,
-                          policy=args.policy, knobs=args.knobs, k=args.k or 10, rounds=args.rounds or 2,
+                          policy=args.policy, knobs=args.knobs, **{k: v for k, v in given.items() if v is not None},
                           balance=args.balance, early_exit=args.early_exit, init_source=args.init_source,
                           inits_per_task=args.inits_per_task,
                           max_episodes=args.max_episodes, patience=args.patience, max_steps=args.max_steps,
                           workers=args.workers, method_settings=settings)
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn()) as bar:
-        job = bar.add_task("verification cases", total=len(opts.tasks) * opts.per_task)
+    try:
+        with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                      TimeElapsedColumn()) as bar:
+            job = bar.add_task("verification cases", total=len(opts.tasks) * opts.per_task)
 
-        def progress(text, kept, total):
-            bar.update(job, completed=total, description=text)
+            def progress(text, kept, total):
+                bar.update(job, completed=total, description=text)
 
-        summary = collect(opts, Path(args.out), progress=progress)
+            summary = collect(opts, Path(args.out), progress=progress)
+    except KeyboardInterrupt:  # the pool's workers ignore Ctrl-C; they were closed on the way out
+        print(f"seal: interrupted: {_collection_kept(Path(args.out), opts)}", file=sys.stderr)
+        return 130
     for key, why in summary["tasks_given_up"].items():
         print(f"seal: warning: {key} given up: {why}", file=sys.stderr)
     print(json.dumps(summary))
     return 0
+
+
+def _collection_kept(out: Path, opts) -> str:
+    """What an interrupted `seal verify collect` leaves, and how to go on."""
+    from seal.collect import existing
+    from seal.sim.suites import get_task
+
+    keys = {get_task(opts.suite, t).key for t in opts.tasks}
+    try:
+        have = {k: v for k, v in existing(out).items() if k in keys}
+    except Exception as exc:  # noqa: BLE001 - a summary line must not turn into a traceback
+        return f"could not count the cases in {out} ({exc}); run the same command again to continue"
+    cases = sum(v["success"] + v["failure"] for v in have.values())
+    episodes = sum(len(v["episodes"]) for v in have.values())
+    if not episodes:
+        return f"no episode had finished, so no case was kept in {out}; run the same command again to start over"
+    return (f"{out} keeps {cases} case(s) from {episodes} finished episode(s) (the episode in progress was dropped); "
+            "run the same command again to continue")
 
 
 def _cmd_verify_from_demos(args) -> int:
@@ -190,11 +216,11 @@ def _cmd_train_verifier(args) -> int:
         raise InvalidInput("seal train verifier needs --data (one or more `seal verify collect` directories, "
                            "comma-separated)")
     holdout = tuple(t.strip() for t in (args.holdout_tasks or "").split(",") if t.strip())
-    cfg = VerifierTrainConfig(steps=args.steps or 2000, batch_size=args.batch_size or 64, lr=args.lr or 1e-3,
-                              image_size=args.image_size, holdout_tasks=holdout, holdout_inits=args.holdout_inits,
+    given = {"steps": args.steps, "batch_size": args.batch_size, "lr": args.lr, "seed": args.seed}  # None: defaults
+    cfg = VerifierTrainConfig(image_size=args.image_size, holdout_tasks=holdout, holdout_inits=args.holdout_inits,
                               jitter=args.jitter, weight_decay=args.weight_decay, lr_schedule=args.lr_schedule,
-                              seed=0 if args.seed is None else args.seed, train_seed=args.train_seed, ema=args.ema,
-                              save_every_s=args.save_every_min * 60.0)
+                              train_seed=args.train_seed, ema=args.ema, save_every_s=args.save_every_min * 60.0,
+                              **{k: v for k, v in given.items() if v is not None})
     if args.export_heldout:
         from seal.train.verifier import export_heldout
 
@@ -212,7 +238,8 @@ def _cmd_train_verifier(args) -> int:
         return 0
     with _stage_bars({"load": "decoding images", "train": "training"}, lambda info: info or "") as progress:
         summary = train_verifier([Path(d) for d in args.data.split(",") if d], Path(args.out), cfg, progress=progress,
-                                 threads=args.threads or 1, command="seal " + " ".join(args.argv))
+                                 threads=1 if args.threads is None else args.threads,
+                                 command="seal " + " ".join(args.argv))
     keys = ("step", "split", "heldout_inits", "heldout_tasks")
     print(json.dumps({k: ({m: v for m, v in summary[k].items() if m != "per_kind"} if isinstance(summary[k], dict)
                           and "per_kind" in summary[k] else summary[k]) for k in keys}))
@@ -410,8 +437,54 @@ class _Parser(argparse.ArgumentParser):
     """Every bad value ends the same way: ``seal: error: ...`` on stderr and exit status 2."""
 
     def error(self, message: str):
-        self.print_usage(sys.stderr)
+        # A bad value of a known option is said in one line (what was given, what is valid); the
+        # usage helps only when the command line itself is malformed (a missing or unknown option).
+        if not re.match(r"argument [^:]+: (invalid|must be)", message):
+            self.print_usage(sys.stderr)
         self.exit(2, f"seal: error: {message}\n")
+
+
+def _int_at_least(low: int, high: int | None = None):
+    """An argparse type: an integer in ``low``..``high`` (a count, an index, a port), so a bad one
+    ends as ``seal: error: argument --x: ...`` before any work, never replaced by a default."""
+
+    def parse(text: str) -> int:
+        value = int(text)  # not a number: argparse's own "invalid int value: 'x'"
+        if value < low or (high is not None and value > high):
+            valid = f">= {low}" if high is None else f"in {low}..{high}"
+            raise argparse.ArgumentTypeError(f"must be an integer {valid}, got {value}")
+        return value
+
+    parse.__name__ = "int"
+    return parse
+
+
+def _real(low: float, high: float | None = None, *, low_open: bool = False, high_open: bool = False):
+    """An argparse type: a finite number in the interval from ``low`` to ``high`` (open ends as
+    said; no ``high``: unbounded)."""
+    if high is None:
+        valid = f"{'>' if low_open else '>='} {low:g}"
+    else:
+        valid = f"in {'(' if low_open else '['}{low:g}, {high:g}{')' if high_open else ']'}"
+
+    def parse(text: str) -> float:
+        value = float(text)  # not a number: argparse's own "invalid float value: 'x'"
+        inside = (value > low if low_open else value >= low) and (
+            high is None or (value < high if high_open else value <= high))
+        if not math.isfinite(value) or not inside:
+            raise argparse.ArgumentTypeError(f"must be a number {valid}, got {text}")
+        return value
+
+    parse.__name__ = "float"
+    return parse
+
+
+_COUNT = _int_at_least(1)  # how many (steps, trials, workers, ...)
+_INDEX = _int_at_least(0)  # which one, from 0
+_RATE = _real(0.0, 1.0)  # a probability or rate
+_FRACTION = _real(0.0, 1.0, high_open=True)  # a share held out (1 would leave nothing)
+_POSITIVE = _real(0.0, low_open=True)  # seconds, minutes, a learning rate
+_NONNEGATIVE = _real(0.0)
 
 
 def _mismatch(text: str):
@@ -426,8 +499,8 @@ def _mismatch(text: str):
 # (flag, MethodSpec field, type, help): the options of a method, shared by `seal run` and `seal eval`.
 # Defaults are MethodSpec's own (None here = not given), so both commands mean the same by them.
 _METHOD_OPTIONS = (
-    ("--k", int, "candidates per sub-plan (default 10)"),
-    ("--rounds", int, "sampling rounds before the fallback (default 2)"),
+    ("--k", _COUNT, "candidates per sub-plan (default 10)"),
+    ("--rounds", _COUNT, "sampling rounds before the fallback (default 2)"),
     ("--subplan-budget", int, "control steps one candidate may spend on one sub-plan (default 200)"),
     ("--mode", str, "sync (default) | replay: execute winners in a separate evaluation world"),
     ("--mismatch", _mismatch, "prediction physics scales 'friction,mass,damping', e.g. 1.3,0.8,1.2"),
@@ -437,17 +510,17 @@ _METHOD_OPTIONS = (
     ("--verifier", str, "oracle (default) | openai | gemini | noisy | learned[:RUN_DIR]"),
     ("--model", str, "VLM model name (openai/gemini verifiers); learned: checkpoint directory"),
     ("--base-url", str, "OpenAI-compatible server URL for VLM verifier/planner (default: OPENAI_BASE_URL)"),
-    ("--false-positive", float, "noisy verifier: false-positive rate"),
-    ("--false-negative", float, "noisy verifier: false-negative rate"),
+    ("--false-positive", _RATE, "noisy verifier: false-positive rate"),
+    ("--false-negative", _RATE, "noisy verifier: false-negative rate"),
     ("--value-ckpt", str, "value: checkpoint file or run directory (`seal train value`)"),
     ("--value-goal", str, "value: condition the Q-function on the task (V-GPS, default) or the sub-plan"),
     ("--policy", str, "scripted (default) | remote: an openpi-protocol server at --host/--port (docs/serving.md) | "
                       "vla[:PATH]: a learned VLA checkpoint (default: the shipped one; vla:twin for its twin)"),
     ("--knobs", str, "scripted expert's failure setting: clean | misaligned (default)"),
     ("--host", str, "remote policy server host (or a ws:// URI; default 127.0.0.1)"),
-    ("--port", int, "remote policy server port (default 8000)"),
+    ("--port", _int_at_least(1, 65535), "remote policy server port (default 8000)"),
     ("--transport", str, "remote: how K observations are sent: auto | batched | concurrent | sequential"),
-    ("--request-timeout", float, "remote: seconds to wait for one reply (default 30)"),
+    ("--request-timeout", _POSITIVE, "remote: seconds to wait for one reply (default 30)"),
     ("--planner", str, "sub-plans for a remote server that does not reason (plain pi0): annotations | vlm"),
     ("--annotations", str, "annotations planner: JSON file or LeRobot dataset dir (default: the task's decomposition)"),
     ("--planner-model", str, "vlm planner: model name (default gpt-4o)"),
@@ -475,10 +548,10 @@ def _add_run(sub) -> None:
     run = sub.add_parser("run", help="one steered LIBERO episode: video, trace, candidate grids, summary")
     run.add_argument("--suite", default="libero_10")
     run.add_argument("--task", type=int, default=0)
-    run.add_argument("--init", type=int, default=0, help="official init state index")
+    run.add_argument("--init", type=_INDEX, default=0, help="official init state index")
     run.add_argument("--method", default="seal", choices=["base", "random", "value", "seal"],
                      help="value: V-GPS re-ranking with a `seal train value` checkpoint (--value-ckpt)")
-    run.add_argument("--max-steps", type=int, default=None, help="default: the suite's limit")
+    run.add_argument("--max-steps", type=_COUNT, default=None, help="default: the suite's limit")
     run.add_argument("--seed", type=int, default=0)
     run.add_argument("--no-video", action="store_true")
     run.add_argument("--no-grids", action="store_true")
@@ -503,7 +576,7 @@ def _add_demos(sub) -> None:
     rec = demos_sub.add_parser("record", help="record successful expert episodes (resumable)")
     rec.add_argument("--suite", default="libero_10")
     rec.add_argument("--tasks", default="", help="comma-separated task ids (default: all)")
-    rec.add_argument("--episodes-per-task", type=int, default=10)
+    rec.add_argument("--episodes-per-task", type=_COUNT, default=10)
     rec.add_argument("--knobs", default="clean", choices=["clean", "misaligned"])
     rec.add_argument("--out", required=True)
     rec.add_argument("--keep-failures", action="store_true",
@@ -511,13 +584,13 @@ def _add_demos(sub) -> None:
     rec.add_argument("--starts", default="sampled", choices=["sampled", "official"],
                      help="sampled: objects and fixtures placed afresh from seeds (training data; no official "
                           "init state); official: LIBERO's init state e for episode e (evaluation states)")
-    rec.add_argument("--image-size", type=int, default=None,
+    rec.add_argument("--image-size", type=_COUNT, default=None,
                      help="render both cameras at this many px (e.g. 64 for a 64-px policy; lossless video); "
                           "default: openpi's 224-px view")
     rec.add_argument("--render", default="stock", choices=["stock", "fast"],
                      help="render model; record in the one the policy will be evaluated in")
-    rec.add_argument("--workers", type=int, default=1, help="episodes recorded in parallel (one simulator each)")
-    rec.add_argument("--dart", type=float, default=0.0,
+    rec.add_argument("--workers", type=_COUNT, default=1, help="episodes recorded in parallel (one simulator each)")
+    rec.add_argument("--dart", type=_NONNEGATIVE, default=0.0,
                      help="perturb each executed chunk by a Gaussian offset of this std (action units, e.g. 0.1) "
                           "and record the expert's unperturbed actions: demonstrations of recovering (DART)")
     rec.set_defaults(func=_cmd_demos)
@@ -531,19 +604,19 @@ def _add_train(sub) -> None:
     train.add_argument("--dataset", default=None,
                        help="LeRobot dataset (value: required; vla: default the one the annotations name)")
     train.add_argument("--out", required=True, help="run directory (re-running continues from its checkpoint)")
-    train.add_argument("--steps", type=int, default=None, help="gradient updates (value 3000, vla 9000, verifier 2000)")
-    train.add_argument("--batch-size", "--batch", dest="batch_size", type=int, default=None,
+    train.add_argument("--steps", type=_COUNT, default=None, help="gradient updates (value 3000, vla 9000, verifier 2000)")
+    train.add_argument("--batch-size", "--batch", dest="batch_size", type=_COUNT, default=None,
                        help="value 128, vla 32, verifier 64")
-    train.add_argument("--lr", type=float, default=None, help="value 3e-4, vla 3e-4 (cosine decay), verifier 1e-3")
-    train.add_argument("--holdout", type=float, default=None,
+    train.add_argument("--lr", type=_POSITIVE, default=None, help="value 3e-4, vla 3e-4 (cosine decay), verifier 1e-3")
+    train.add_argument("--holdout", type=_FRACTION, default=None,
                        help="fraction of episodes held out for the check (value 0.2, vla 0.1)")
     train.add_argument("--seed", type=int, default=None)
-    train.add_argument("--threads", type=int, default=None, help="vla/verifier: torch threads (default 1)")
+    train.add_argument("--threads", type=_COUNT, default=None, help="vla/verifier: torch threads (default 1)")
     value = train.add_argument_group("value")
     value.add_argument("--goals", default="both", choices=["task", "subplan", "both"],
                        help="goal texts to condition on: the task instruction, each sub-plan, or both")
-    value.add_argument("--gamma", type=float, default=0.9, help="discount per 5-step chunk")
-    value.add_argument("--expectile", type=float, default=0.7, help="IQL's tau")
+    value.add_argument("--gamma", type=_RATE, default=0.9, help="discount per 5-step chunk")
+    value.add_argument("--expectile", type=_real(0.0, 1.0, low_open=True, high_open=True), default=0.7, help="IQL's tau")
     vla = train.add_argument_group("vla")
     vla.add_argument("--annotations", default=None, help="`seal annotate` output directory (reasoning labels)")
     vla.add_argument("--no-reasoning", action="store_true", help="train the non-reasoning twin (pi0 baseline)")
@@ -551,8 +624,8 @@ def _add_train(sub) -> None:
     vla.add_argument("--cache", default=None, help="frame cache directory (default RUN/cache; reusable across runs)")
     vla.add_argument("--bf16", action=argparse.BooleanOptionalAction, default=None,
                      help="bf16 autocast (default on; docs/performance.md)")
-    vla.add_argument("--save-minutes", type=float, default=None, help="checkpoint interval (default 10)")
-    vla.add_argument("--eval-every", type=int, default=None, help="held-out evaluation interval in steps (500)")
+    vla.add_argument("--save-minutes", type=_POSITIVE, default=None, help="checkpoint interval (default 10)")
+    vla.add_argument("--eval-every", type=_COUNT, default=None, help="held-out evaluation interval in steps (500)")
     vla.add_argument("--model-config", default=None, help="JSON file of VLAConfig fields to override")
     vla.add_argument("--export", default=None, metavar="DIR",
                      help="after training (or on a finished run), write a 16-bit copy of the checkpoint to DIR "
@@ -577,7 +650,7 @@ def _add_train(sub) -> None:
     ver.add_argument("--train-seed", type=int, default=None,
                      help="seed of the initial weights, batches and augmentation (default: --seed, which also draws "
                      "the held-out split); another --train-seed on the same split measures run-to-run spread")
-    ver.add_argument("--save-every-min", type=float, default=5.0, help="minutes between checkpoints")
+    ver.add_argument("--save-every-min", type=_POSITIVE, default=5.0, help="minutes between checkpoints")
     ver.add_argument("--score", default=None, help="instead of training: score these checkpoint directories "
                      "(comma-separated) on the held-out splits this command's --data, --holdout-tasks, --holdout-inits "
                      "and --seed make, per split and per policy that made the cases (one JSON; --out caches images)")
@@ -602,7 +675,7 @@ def _add_verify(sub) -> None:
     col.add_argument("--policy", default="scripted", help="who proposes candidates: scripted | vla | remote | ...")
     col.add_argument("--knobs", default="misaligned", choices=["clean", "misaligned"],
                      help="scripted expert's failure setting")
-    col.add_argument("--per-task", type=int, default=100, help="cases kept per task")
+    col.add_argument("--per-task", type=_COUNT, default=100, help="cases kept per task")
     col.add_argument("--balance", action="store_true", help="keep as many failures as successes per task")
     col.add_argument("--early-exit", action="store_true",
                      help="SEAL's early exit: a round's other candidates stop at the first pass and are never "
@@ -610,12 +683,12 @@ def _add_verify(sub) -> None:
     col.add_argument("--init-source", default="fresh-train", choices=["fresh-train", "fresh-heldout", "official"],
                      help="init states: fresh ones drawn for training (default), the held-out fresh range, "
                           "or LIBERO's official evaluation ones")
-    col.add_argument("--inits-per-task", type=int, default=20, help="fresh init states drawn per task")
-    col.add_argument("--max-episodes", type=int, default=None, help="per task (default 4 x --per-task)")
-    col.add_argument("--patience", type=int, default=20,
+    col.add_argument("--inits-per-task", type=_COUNT, default=20, help="fresh init states drawn per task")
+    col.add_argument("--max-episodes", type=_COUNT, default=None, help="per task (default 4 x --per-task)")
+    col.add_argument("--patience", type=_COUNT, default=20,
                      help="give a task up after this many episodes in a row that kept no case (default 20)")
-    col.add_argument("--max-steps", type=int, default=None, help="per episode (default: the suite's limit)")
-    col.add_argument("--workers", type=int, default=None, help="simulator processes (default: min(K, cores))")
+    col.add_argument("--max-steps", type=_COUNT, default=None, help="per episode (default: the suite's limit)")
+    col.add_argument("--workers", type=_COUNT, default=None, help="simulator processes (default: min(K, cores))")
     col.add_argument("--out", required=True, help="collection directory (re-run with the same one to continue)")
     group = col.add_argument_group("method options (seal.steer.method.MethodSpec)")
     for flag, kind, help_text in _METHOD_OPTIONS:
@@ -628,7 +701,7 @@ def _add_verify(sub) -> None:
                                 "sub-plan (the hard negatives: almost there), label by the oracle (training data only)")
     dem.add_argument("--dataset", required=True, help="a `seal demos record` dataset (sampled starts)")
     dem.add_argument("--tasks", default=None, help="comma-separated task ids (default: every task in the dataset)")
-    dem.add_argument("--episodes-per-task", type=int, default=None, help="the first N episodes of each task")
+    dem.add_argument("--episodes-per-task", type=_COUNT, default=None, help="the first N episodes of each task")
     dem.add_argument("--fractions", default="0.3,0.6,0.8,0.9,1.0",
                      help="end states judged per sub-plan, as fractions of the way from its start to its end")
     dem.add_argument("--after", type=int, default=10, help="one more end state this many frames past the "
@@ -658,16 +731,16 @@ def _add_suites(sub) -> None:
     s_show.add_argument("suite")
     s_show.add_argument("--out", required=True, help="PNG file")
     s_show.add_argument("--tasks", default="", help="comma-separated task ids (default: all)")
-    s_show.add_argument("--init", type=int, default=0, help="init state index of the frames")
+    s_show.add_argument("--init", type=_INDEX, default=0, help="init state index of the frames")
     s_gen = suites_sub.add_parser("generate", help="(re)write a derived suite's BDDL files and init states")
     s_gen.add_argument("suite")
     s_gen.add_argument("--tasks", default="", help="comma-separated task ids (default: all)")
-    s_gen.add_argument("--n", type=int, default=50, help="init states per task")
+    s_gen.add_argument("--n", type=_COUNT, default=50, help="init states per task")
     s_gen.add_argument("--force", action="store_true", help="regenerate init states that are already current")
     s_chk = suites_sub.add_parser("check", help="build each task's world, render its first frame, check its data")
     s_chk.add_argument("suite")
     s_chk.add_argument("--tasks", default="", help="comma-separated task ids (default: all)")
-    s_chk.add_argument("--inits", type=int, default=5, help="init states per task to check (spread over all)")
+    s_chk.add_argument("--inits", type=_COUNT, default=5, help="init states per task to check (spread over all)")
     suites.set_defaults(func=_cmd_suites)
 
 
@@ -678,16 +751,16 @@ def _add_eval(sub) -> None:
                     help="comma-separated methods, each optionally with settings: seal:k=5:rounds=1 (a mismatch "
                          "inside an item: seal:mismatch=1.3/0.8/1.2); the method options below apply to all")
     ev.add_argument("--tasks", default="", help="comma-separated task ids (default: all)")
-    ev.add_argument("--trials", type=int, default=50, help="trials per task (init state = trial mod #inits)")
+    ev.add_argument("--trials", type=_COUNT, default=50, help="trials per task (init state = trial mod #inits)")
     ev.add_argument("--db", required=True, help="results database (created if missing, resumed if present)")
     ev.add_argument("--out", default=None, help="traces/videos directory (default: next to the database)")
     ev.add_argument("--backend", default="local", help="local | ray")
     ev.add_argument("--address", default=None, help="ray: cluster address (default: start a local one)")
-    ev.add_argument("--workers", type=int, default=1, help="trials run in parallel")
-    ev.add_argument("--pool-workers", type=int, default=1, help="simulator processes per trial worker")
+    ev.add_argument("--workers", type=_COUNT, default=1, help="trials run in parallel")
+    ev.add_argument("--pool-workers", type=_COUNT, default=1, help="simulator processes per trial worker")
     ev.add_argument("--video", default="failures", choices=["none", "failures", "all"])
     ev.add_argument("--no-grids", action="store_true")
-    ev.add_argument("--max-steps", type=int, default=None, help="cap episode length (default: the suite's)")
+    ev.add_argument("--max-steps", type=_COUNT, default=None, help="cap episode length (default: the suite's)")
     ev.add_argument("--retry-errors", action="store_true",
                     help="run again the trials of this command stored as errors (a crashed worker, a server that "
                     "timed out); each error row stays until its new result replaces it")
@@ -737,11 +810,11 @@ def _add_annotate(sub) -> None:
     ann.add_argument("--model", default=None, help="default: gemini-2.5-pro / gpt-4o")
     ann.add_argument("--base-url", default=None, help="server URL (default: the SDK's, e.g. OPENAI_BASE_URL)")
     ann.add_argument("--camera", default=None, help="image feature to annotate (default: the agent view)")
-    ann.add_argument("--concurrency", type=int, default=4, help="episodes in flight at once")
-    ann.add_argument("--timeout", type=float, default=180.0, help="seconds per model call attempt")
-    ann.add_argument("--max-retries", type=int, default=3, help="retries of a call on 429/5xx/timeouts")
-    ann.add_argument("--max-invalid", type=int, default=2, help="re-asks after a reply that fails validation")
-    ann.add_argument("--frame-stride", type=int, default=1, help="openai: send every n-th 10 fps frame")
+    ann.add_argument("--concurrency", type=_COUNT, default=4, help="episodes in flight at once")
+    ann.add_argument("--timeout", type=_POSITIVE, default=180.0, help="seconds per model call attempt")
+    ann.add_argument("--max-retries", type=_INDEX, default=3, help="retries of a call on 429/5xx/timeouts")
+    ann.add_argument("--max-invalid", type=_INDEX, default=2, help="re-asks after a reply that fails validation")
+    ann.add_argument("--frame-stride", type=_COUNT, default=1, help="openai: send every n-th 10 fps frame")
     ann.add_argument("--cache-dir", default=None, help="cache valid model answers here")
     ann.add_argument("--videos", action=argparse.BooleanOptionalAction, default=None,
                      help="write the 10 fps clips into OUT/videos (default: for model backends)")
@@ -760,41 +833,41 @@ def _add_bench(sub) -> None:
                                                      "M-e192x3)")
     bench.add_argument("--sizes", default=None, help="vla: also time training steps of these presets (e.g. S,M,L)")
     bench.add_argument("--dataset", default=None, help="annotate/value/vla: LeRobot dataset directory")
-    bench.add_argument("--steps", type=int, default=None, help="value: training updates on --dataset (default 300)")
+    bench.add_argument("--steps", type=_COUNT, default=None, help="value: training updates on --dataset (default 300)")
     bench.add_argument("--backend", default="offline", choices=["offline", "gemini", "openai"],
                        help="annotate: annotation backend")
     bench.add_argument("--model", default=None, help="annotate/verifier: model name (gemini/openai)")
     bench.add_argument("--base-url", default=None, help="annotate/verifier: model server URL")
     bench.add_argument("--ks", default="", help="runtime: comma-separated K values (default 1,2,4,8,10)")
-    bench.add_argument("--latency", type=float, default=2.0, help="runtime: fixed verifier latency in seconds")
+    bench.add_argument("--latency", type=_NONNEGATIVE, default=2.0, help="runtime: fixed verifier latency in seconds")
     bench.add_argument("--policy", default=None,
                        help="runtime: scripted (state only), pixels (the expert reading both cameras every chunk, "
                             "a VLA's rendering without its network) or vla[:PATH]; steer/verifier-sweep: the policy "
                             "(default scripted)")
-    bench.add_argument("--image-size", type=int, default=None, help="runtime: camera px for pixel policies (64); render: the size measured (64)")
+    bench.add_argument("--image-size", type=_COUNT, default=None, help="runtime: camera px for pixel policies (64); render: the size measured (64)")
     bench.add_argument("--render", default=None, choices=["stock", "fast"],
                        help="runtime: render model (default: fast for pixel policies)")
     bench.add_argument("--plot", default=None, help="runtime: write the stacked breakdown against K to this PNG")
-    bench.add_argument("--dart", type=float, default=0.0,
+    bench.add_argument("--dart", type=_NONNEGATIVE, default=0.0,
                        help="expert: perturb every executed chunk by a Gaussian offset of this std (as `seal demos "
                             "record --dart` does): how much perturbation the expert survives")
-    bench.add_argument("--rollouts", type=int, default=0,
+    bench.add_argument("--rollouts", type=_INDEX, default=0,
                        help="vla with --ckpt: closed-loop episodes per task on fresh sampled starts (default 0: none)")
     bench.add_argument("--tasks", default="", help="comma-separated task ids (expert: all; steer: 0,1,7; runtime: 5; render: 0,3,9)")
-    bench.add_argument("--trials", type=int, default=None,
+    bench.add_argument("--trials", type=_COUNT, default=None,
                        help="expert/steer/runtime: trials (init states) per task (default 50); eval: trials per "
                             "task (default 3); serve: round trips (default 50)")
-    bench.add_argument("--max-steps", type=int, default=None,
+    bench.add_argument("--max-steps", type=_COUNT, default=None,
                        help="steer/runtime/eval: control steps per episode (default: the suite's limit)")
     bench.add_argument("--no-misaligned", action="store_true", help="expert: skip the misaligned setting")
-    bench.add_argument("--first-init", type=int, default=0,
+    bench.add_argument("--first-init", type=_INDEX, default=0,
                        help="expert: first official init state (trials run first-init .. first-init+trials-1)")
     bench.add_argument("--log", default=None,
                        help="expert: JSONL file, one row per finished episode; re-running resumes from it")
     bench.add_argument("--suite", default="libero_10")
-    bench.add_argument("--task", type=int, default=0)
-    bench.add_argument("--k", type=int, default=10)
-    bench.add_argument("--workers", type=int, default=None)
+    bench.add_argument("--task", type=_INDEX, default=0)
+    bench.add_argument("--k", type=_COUNT, default=10)
+    bench.add_argument("--workers", type=_COUNT, default=None)
     vb = bench.add_argument_group("verifier / verifier-sweep (docs/verifier.md)")
     vb.add_argument("--verifier", default="oracle",
                     help="verifier: oracle | openai | gemini | noisy | learned[:RUN_DIR]; steer: the verifier SEAL uses")
@@ -802,12 +875,12 @@ def _add_bench(sub) -> None:
                     "fresh held-out set, collected once into runs/verifier/heldout/)")
     vb.add_argument("--out", default=None, help="verifier: Markdown file; verifier-sweep: results directory "
                     "(default runs/verifier/sweep)")
-    vb.add_argument("--limit", type=int, default=None, help="verifier: score at most N cases (a fixed shuffle)")
-    vb.add_argument("--false-positive", type=float, default=None, help="verifier noisy: false-positive rate")
-    vb.add_argument("--false-negative", type=float, default=None, help="verifier noisy: false-negative rate")
-    vb.add_argument("--threshold", type=float, default=None,
+    vb.add_argument("--limit", type=_COUNT, default=None, help="verifier: score at most N cases (a fixed shuffle)")
+    vb.add_argument("--false-positive", type=_RATE, default=None, help="verifier noisy: false-positive rate")
+    vb.add_argument("--false-negative", type=_RATE, default=None, help="verifier noisy: false-negative rate")
+    vb.add_argument("--threshold", type=_RATE, default=None,
                     help="verifier learned: success when P(success) >= this (default: the checkpoint's)")
-    vb.add_argument("--min-precision", type=float, default=None,
+    vb.add_argument("--min-precision", type=_RATE, default=None,
                     help="verifier learned: also report the lowest threshold reaching this precision on --data "
                          "(pick it on a calibration set, report with --threshold on another)")
     vb.add_argument("--cache-dir", default=None,

@@ -79,6 +79,27 @@ class CollectOptions:
     workers: int | None = None  # pool worker processes
     method_settings: dict = field(default_factory=dict)  # other MethodSpec fields (host, port, ...)
 
+    def __post_init__(self) -> None:
+        self.check()
+
+    def check(self) -> None:
+        """Refuse what cannot be collected, before anything is drawn or written; never replace a
+        value given by another."""
+        if self.init_source not in INIT_SOURCES:
+            raise InvalidInput(f"unknown init source {self.init_source!r}; valid: {', '.join(INIT_SOURCES)}")
+        counts = {"--per-task": self.per_task, "--k": self.k, "--rounds": self.rounds,
+                  "--inits-per-task": self.inits_per_task, "--patience": self.patience,
+                  "--max-episodes": self.max_episodes, "--max-steps": self.max_steps, "--workers": self.workers}
+        optional = ("--max-episodes", "--max-steps", "--workers")  # None: the default
+        for flag, value in counts.items():
+            if value is None and flag in optional:
+                continue
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise InvalidInput(f"{flag} must be an integer >= 1, got {value!r}")
+        if self.workers is not None and self.workers > self.k:
+            raise InvalidInput(f"--workers must be in 1..{self.k} (one simulator serves at least one of the "
+                               f"--k {self.k} candidates), got {self.workers}")
+
     def settings(self) -> dict:
         """What must not change between a collection and its resumption."""
         return {"suite": self.suite, "policy": self.policy, "knobs": self.knobs, "k": self.k, "rounds": self.rounds,
@@ -207,10 +228,7 @@ def collect(opts: CollectOptions, out: Path, *, progress: Callable | None = None
     from seal.steer.build import build_episode
     from seal.steer.method import MethodSpec
 
-    if opts.init_source not in INIT_SOURCES:
-        raise InvalidInput(f"unknown init source {opts.init_source!r}; valid: {', '.join(INIT_SOURCES)}")
-    if opts.per_task < 1 or opts.inits_per_task < 1:
-        raise InvalidInput("--per-task and --inits-per-task must be >= 1")
+    opts.check()
     out = Path(out)
     spec = MethodSpec(method="seal", k=opts.k, rounds=opts.rounds, verifier="oracle", policy=opts.policy,
                       knobs=opts.knobs, **opts.method_settings)

@@ -68,8 +68,13 @@ def run(args) -> dict:
     fns = _rates(getattr(args, "fn", None), DEFAULT_FN, "--fn")
     trials = trials_of(args, "verifier-sweep")
     tasks = parse_task_ids(args.suite, args.tasks or "0,1,7")
+    # read before any episode runs (a bad file found after an hour's sweep wastes the hour)
+    points = load_points(getattr(args, "points", None))
+    if args.k < 1:
+        raise InvalidInput(f"--k must be >= 1, got {args.k}")
+    if args.workers is not None and not 1 <= args.workers <= args.k:
+        raise InvalidInput(f"--workers must be in 1..{args.k} for --k {args.k}, got {args.workers}")
     out = Path(args.out) if getattr(args, "out", None) else DEFAULT_OUT
-    out.mkdir(parents=True, exist_ok=True)
     policy = getattr(args, "policy", None) or "scripted"
     knobs = "misaligned" if policy == "scripted" else None  # the scripted expert's setting (recorded for it only)
     common = {"k": args.k, "knobs": "misaligned", "policy": policy}
@@ -81,6 +86,7 @@ def run(args) -> dict:
     settings = {"suite": args.suite, "k": args.k, "policy": policy, "knobs": knobs,
                 "max_steps": getattr(args, "max_steps", None)}
     settings_path = out / "settings.json"
+    out.mkdir(parents=True, exist_ok=True)  # after every check: a refused sweep leaves no empty folder
     if settings_path.is_file() and json.loads(settings_path.read_text()) != settings:
         raise InvalidInput(f"{out} holds a sweep with other settings ({settings_path.read_text().strip()}; now "
                            f"{json.dumps(settings)}); use another --out")
@@ -112,7 +118,6 @@ def run(args) -> dict:
     rows = [r for r in read_rows(results) if r["cell"] in cells and r["task"] in {get_task(args.suite, t).key for t in tasks}
             and r["trial"] < trials]
     table = summarize(rows, fps, fns)
-    points = load_points(getattr(args, "points", None))
     md = markdown(table, fps, fns, points, policy)
     (out / "sweep.md").write_text(md)
     plot = draw(table, fps, fns, points, out / "sweep.png")
@@ -139,8 +144,12 @@ def load_points(text: str | None) -> list[dict]:
             result = json.loads(path.read_text())
         except (OSError, ValueError) as exc:
             raise InvalidInput(f"--points: cannot read {path} as a `seal bench verifier` JSON: {exc}") from None
-        if result.get("fp_rate") is None or result.get("fn_rate") is None:
+        if not isinstance(result, dict) or result.get("fp_rate") is None or result.get("fn_rate") is None:
             raise InvalidInput(f"--points: {path} has no fp_rate / fn_rate (not a `seal bench verifier` output?)")
+        for key in ("fp_rate", "fn_rate"):
+            v = result[key]
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 <= v <= 1.0:
+                raise InvalidInput(f"--points: {path} has {key} {v!r}; a rate is a number in [0, 1]")
         label = str(result.get("verifier", path.stem))
         if ":" in label and "/" in label:  # learned:/long/path/RUN -> learned:RUN
             kind, _, where = label.partition(":")

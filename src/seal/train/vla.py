@@ -389,7 +389,6 @@ def train_vla(dataset: Path | None, annotations: Path, out: Path, cfg: TrainConf
     from seal.train.pipeline import split_episodes
 
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     say = progress or (lambda *a, **k: None)
     torch.set_num_threads(cfg.threads)
     ann = AnnotatedDataset(Path(annotations), Path(dataset) if dataset else None)
@@ -402,6 +401,7 @@ def train_vla(dataset: Path | None, annotations: Path, out: Path, cfg: TrainConf
                            f"({len(annotated)} annotated, none marked success)")
     train_eps, held_eps = split_episodes(len(episodes), cfg.holdout, cfg.seed)
     train_eps, held_eps = [episodes[i] for i in train_eps], [episodes[i] for i in held_eps]
+    out.mkdir(parents=True, exist_ok=True)  # not before: annotations that cannot be used leave no empty run directory
 
     # tokenizer: trained once per run on the project's text and this data's labels
     tok_path = out / TOKENIZER
