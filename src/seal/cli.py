@@ -87,6 +87,27 @@ def _cmd_demos(args) -> int:
     return 0
 
 
+def _cmd_dagger(args) -> int:
+    from seal.dagger import collect_dagger
+    from seal.progress import Progress
+    from seal.sim.suites import parse_task_ids
+
+    tasks = None if not args.tasks else parse_task_ids(args.suite, args.tasks)
+    with Progress() as bar:
+        job = bar.add_task(f"DAgger round {args.round}", total=None)
+
+        def progress(summary, total, advance):
+            bar.update(job, total=total, advance=advance,
+                       description=f"{summary.recorded} rollouts ({summary.successes} solved), {summary.frames} "
+                                   f"labelled states, {summary.invalid_labels} without a teacher answer")
+
+        summary = collect_dagger(args.suite, Path(args.out), ckpt=args.ckpt, episodes_per_task=args.episodes_per_task,
+                                 round_=args.round, beta=args.beta, tasks=tasks, workers=args.workers,
+                                 render_mode=args.render, max_steps=args.max_steps, progress=progress)
+    print(json.dumps(summary.__dict__))
+    return 0
+
+
 @contextlib.contextmanager
 def _stage_bars(names: dict[str, str], info):
     """A progress display for a training command: one bar per stage (``names``: stage -> label;
@@ -257,7 +278,8 @@ def _cmd_train_vla(args) -> int:
         raise InvalidInput("seal train vla needs --annotations (a `seal annotate` output directory)")
     given = {"steps": args.steps, "batch_size": args.batch_size, "lr": args.lr, "holdout": args.holdout,
              "device": args.device, "threads": args.threads, "save_minutes": args.save_minutes,
-             "eval_every": args.eval_every, "bf16": args.bf16, "seed": args.seed}
+             "eval_every": args.eval_every, "bf16": args.bf16, "seed": args.seed,
+             "instruction_dropout": args.instruction_dropout}
     cfg = replace(TrainConfig(), **{k: v for k, v in given.items() if v is not None})
     model_cfg = VLAConfig()
     if args.model_config:
@@ -267,13 +289,22 @@ def _cmd_train_vla(args) -> int:
             raise InvalidInput(f"--model-config {args.model_config}: {exc}") from None
     if args.no_reasoning:
         model_cfg = replace(model_cfg, reasoning=False)
+    mix = None
+    if args.mix:
+        try:
+            mix = [float(w) for w in args.mix.split(",")]
+        except ValueError:
+            raise InvalidInput(f"--mix must be comma-separated numbers, one per --annotations directory; got "
+                               f"{args.mix!r}") from None
+
     def info(m):
         return f"loss {m['loss']:.4f}  {m['samples_per_s']:.1f} samples/s" if m else ""
 
     with _stage_bars({"cache": "decoding episodes", "train": "training"}, info) as progress:
-        summary = train_vla(Path(args.dataset) if args.dataset else None, Path(args.annotations), Path(args.out),
+        summary = train_vla(Path(args.dataset) if args.dataset else None,
+                            [Path(a) for a in args.annotations.split(",") if a.strip()], Path(args.out),
                             cfg, model_cfg, cache=Path(args.cache) if args.cache else None, progress=progress,
-                            command="seal " + " ".join(args.argv))
+                            command="seal " + " ".join(args.argv), mix=mix, init_from=args.init_from)
     out = {k: summary[k] for k in ("run", "step", "params", "last", "heldout")}
     if args.export:
         from seal.policies.vla.checkpoint import export_checkpoint
@@ -594,6 +625,21 @@ def _add_demos(sub) -> None:
                      help="perturb each executed chunk by a Gaussian offset of this std (action units, e.g. 0.1) "
                           "and record the expert's unperturbed actions: demonstrations of recovering (DART)")
     rec.set_defaults(func=_cmd_demos)
+    dag = demos_sub.add_parser("dagger", help="roll out a learned VLA on fresh starts and record the scripted "
+                                              "expert's labels at every state it reaches (DAgger; resumable)")
+    dag.add_argument("--ckpt", default="reason", help="the VLA to roll out: reason (shipped), or a checkpoint/run dir")
+    dag.add_argument("--suite", default="libero_10")
+    dag.add_argument("--tasks", default="", help="comma-separated task ids (default: all)")
+    dag.add_argument("--episodes-per-task", type=_COUNT, default=10)
+    dag.add_argument("--round", type=_COUNT, default=1, help="DAgger round: each has starts of its own")
+    dag.add_argument("--beta", type=_real(0.0, 1.0), default=0.0,
+                     help="share of chunks the expert executes instead of the VLA (0: the VLA alone)")
+    dag.add_argument("--render", default=None, choices=["stock", "fast"],
+                     help="render model (default: the one the checkpoint was trained in)")
+    dag.add_argument("--max-steps", type=_COUNT, default=None, help="step budget (default: the task's)")
+    dag.add_argument("--workers", type=_COUNT, default=1, help="episodes in parallel (one simulator each)")
+    dag.add_argument("--out", required=True)
+    dag.set_defaults(func=_cmd_dagger)
 
 
 def _add_train(sub) -> None:
@@ -618,7 +664,17 @@ def _add_train(sub) -> None:
     value.add_argument("--gamma", type=_RATE, default=0.9, help="discount per 5-step chunk")
     value.add_argument("--expectile", type=_real(0.0, 1.0, low_open=True, high_open=True), default=0.7, help="IQL's tau")
     vla = train.add_argument_group("vla")
-    vla.add_argument("--annotations", default=None, help="`seal annotate` output directory (reasoning labels)")
+    vla.add_argument("--annotations", default=None,
+                     help="`seal annotate` output directory (reasoning labels), or several comma-separated: the "
+                          "demonstrations first, then `seal demos dagger` rounds (OUT/annotations)")
+    vla.add_argument("--mix", default=None, help="comma-separated share of each batch per --annotations directory "
+                                                 "(default: in proportion to their frames)")
+    vla.add_argument("--init-from", default=None, metavar="CKPT",
+                     help="fine-tune this VLA checkpoint (reason, twin, or a directory): its shape, tokenizer and "
+                          "normalization; --model-config is ignored")
+    vla.add_argument("--instruction-dropout", type=_real(0.0, 1.0, high_open=True), default=None,
+                     help="share of samples trained with the instruction left out, so actions read the sub-plan "
+                          "(reasoning model; default 0)")
     vla.add_argument("--no-reasoning", action="store_true", help="train the non-reasoning twin (pi0 baseline)")
     vla.add_argument("--device", default=None, help="cpu (default) | cuda")
     vla.add_argument("--cache", default=None, help="frame cache directory (default RUN/cache; reusable across runs)")

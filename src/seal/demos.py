@@ -62,10 +62,11 @@ class _Job:
     dart: float = 0.0
 
 
-def start_seed(task_key: str, episode: int) -> int:
+def start_seed(task_key: str, episode: int, namespace: str = "train") -> int:
     """First seed tried for a sampled start: stable across machines, distinct per task and episode,
-    and apart from the seeds evaluation suites draw their init states from (`seal.sim.generate`)."""
-    return (zlib.crc32(f"train:{task_key}".encode()) % 1_000_000) * 1_000_000 + episode * SEED_STRIDE
+    and apart from the seeds evaluation suites draw their init states from (`seal.sim.generate`).
+    Another ``namespace`` (DAgger rounds) gives starts apart from the recordings'."""
+    return (zlib.crc32(f"{namespace}:{task_key}".encode()) % 1_000_000) * 1_000_000 + episode * SEED_STRIDE
 
 
 def _attempted(root: Path, dart: float = 0.0) -> set[tuple[str, int, int]]:

@@ -78,6 +78,9 @@ class TrainConfig:
     holdout: float = 0.1  # share of annotated episodes held out (split by episode)
     shift: int = 4  # random-shift augmentation, pixels at the model's resolution
     think_fraction: float = 0.125  # share of each batch that are think samples (reasoning model only)
+    # share of ordinary samples whose instruction is left out (reasoning model only): the action expert
+    # must then read the task from the sub-plan text, so its actions follow the reasoning, not the prompt
+    instruction_dropout: float = 0.0
     bf16: bool = True  # bf16 autocast (CPU: needs avx512_bf16 or AMX to pay off; measure)
     threads: int = 1  # torch intra-op threads (on a shared 2-core machine, 1 was fastest)
     device: str = "cpu"
@@ -174,9 +177,15 @@ class Labels:
     now: list[str]  # per text: its "Now I need to do" field
     think_frames: np.ndarray  # (M,) global frames right after a sub-goal first held
     think_reason: np.ndarray  # (M,) the stale label (in force before that sub-goal held)
+    # DAgger sources (`seal demos dagger`): the teacher's chunk at each frame, and whether the teacher
+    # had an answer there at all (frames without one give no action or text sample, only think ones)
+    chunks: np.ndarray | None = None  # (N, PREDICT_HORIZON, 7)
+    usable: np.ndarray | None = None  # (N,) bool; None: every frame
 
 
-def make_labels(cache: FrameCache, records: dict[int, dict]) -> Labels:
+def make_labels(cache: FrameCache, records: dict[int, dict], root: Path | None = None) -> Labels:
+    """Per-frame labels of the cached episodes: from plans + critical moments (demonstrations), or
+    read per frame from ``root``'s label files (DAgger episodes, ``frame_labels`` records)."""
     from seal.annotate.align import label_at
 
     texts: dict[str, int] = {}
@@ -194,6 +203,12 @@ def make_labels(cache: FrameCache, records: dict[int, dict]) -> Labels:
             nows.append(r.now)
         return texts[t]
 
+    per_frame = {bool(records[e].get("frame_labels")) for e in cache.episodes}
+    if len(per_frame) > 1:
+        raise InvalidInput("an annotation directory mixes DAgger episodes with demonstrations; give them as two "
+                           "--annotations sources")
+    if per_frame == {True}:
+        return _frame_labels(cache, records, root)
     for e, start, length in zip(cache.episodes, cache.starts, cache.lengths):
         record = records[e]
         plans = list(record["plans"])
@@ -212,12 +227,53 @@ def make_labels(cache: FrameCache, records: dict[int, dict]) -> Labels:
                   np.asarray(think_reason, np.int64))
 
 
+def _frame_labels(cache: FrameCache, records: dict[int, dict], root: Path | None) -> Labels:
+    """Labels of DAgger episodes: the teacher's text and chunk at every frame; a think sample (the
+    policy's own, stale text -> think) wherever the policy's sub-plan was not the teacher's."""
+    from seal.dagger import read_frame_labels
+    from seal.serving.protocol import parse_reasoning
+
+    if root is None:
+        raise InvalidInput("DAgger labels need the annotation directory they live in")
+    texts: dict[str, int] = {}
+    nows: list[str] = []
+    instructions: dict[str, int] = {}
+    n = len(cache.states)
+    reason = np.zeros(n, np.int64)
+    instruction = np.zeros(n, np.int64)
+    chunks = np.zeros((n, PREDICT_HORIZON, ACTION_DIM), np.float32)
+    usable = np.zeros(n, bool)
+    think_frames, think_reason = [], []
+
+    def text_id(t: str) -> int:
+        if t not in texts:
+            texts[t] = len(texts)
+            nows.append(parse_reasoning(t).now)
+        return texts[t]
+
+    for e, start, length in zip(cache.episodes, cache.starts, cache.lengths):
+        lab = read_frame_labels(root, records[e])
+        if len(lab["reasoning"]) != length:
+            raise InvalidInput(f"{root}: episode {e} has {len(lab['reasoning'])} labels for {length} frames")
+        instruction[start:start + length] = instructions.setdefault(records[e]["instruction"], len(instructions))
+        for t in range(length):
+            reason[start + t] = text_id(lab["reasoning"][t])
+            if lab["think"][t]:
+                think_frames.append(start + t)
+                think_reason.append(text_id(lab["vla_reasoning"][t]))
+        chunks[start:start + length] = lab["chunks"]
+        usable[start:start + length] = lab["valid"]
+    return Labels(list(texts), list(instructions), reason, instruction, nows, np.asarray(think_frames, np.int64),
+                  np.asarray(think_reason, np.int64), chunks=chunks, usable=usable)
+
+
 class Batcher:
     """Turns frame indices into model batches (tokenized once, gathered per batch)."""
 
     def __init__(self, cache: FrameCache, labels: Labels, tok: VLATokenizer, cfg: VLAConfig):
         self.cache, self.labels, self.cfg = cache, labels, cfg
-        ins = [instruction_ids(tok, t, cfg.max_instruction_tokens) for t in labels.instructions]
+        ins = [instruction_ids(tok, t, cfg.max_instruction_tokens) for t in [*labels.instructions, ""]]
+        self.no_instruction = len(labels.instructions)  # the empty one, last
         self.instr_ids = np.stack([i for i, _ in ins])
         self.instr_valid = np.stack([v for _, v in ins])
         if cfg.reasoning:
@@ -232,7 +288,8 @@ class Batcher:
         self.ends = ends
 
     def batch(self, frames: np.ndarray, reason: np.ndarray, think: np.ndarray, shift: int = 0,
-              gen: torch.Generator | None = None, device: str = "cpu") -> dict:
+              gen: torch.Generator | None = None, device: str = "cpu", drop: np.ndarray | None = None) -> dict:
+        """``drop``: per sample, whether its instruction is replaced by an empty one."""
         order = np.argsort(frames, kind="stable")  # memmap reads in file order, then back
         agent = np.empty((len(frames), *self.cache.agent.shape[1:]), np.uint8)
         wrist = np.empty_like(agent)
@@ -241,15 +298,20 @@ class Batcher:
         agent_t, wrist_t = torch.from_numpy(agent), torch.from_numpy(wrist)
         if shift:
             agent_t, wrist_t = random_shift(agent_t, shift, gen), random_shift(wrist_t, shift, gen)
-        offsets = np.arange(PREDICT_HORIZON)
-        window = frames[:, None] + offsets[None]
-        valid = window < self.ends[frames][:, None]
-        window = np.minimum(window, self.ends[frames][:, None] - 1)  # padded steps repeat the last action
+        if self.labels.chunks is not None:  # the teacher's whole chunk at this frame
+            actions = self.labels.chunks[frames]
+            valid = np.ones(actions.shape[:2], bool)
+        else:  # the recorded actions from this frame on
+            window = frames[:, None] + np.arange(PREDICT_HORIZON)[None]
+            valid = window < self.ends[frames][:, None]
+            actions = self.cache.actions[np.minimum(window, self.ends[frames][:, None] - 1)]  # padding repeats the last
         instr = self.labels.instruction[frames]
+        if drop is not None:  # the sub-plan alone must carry the task: the instruction left out
+            instr = np.where(drop, self.no_instruction, instr)
         out = {"agent": agent_t, "wrist": wrist_t, "state": torch.from_numpy(self.cache.states[frames]),
                "instr_ids": torch.from_numpy(self.instr_ids[instr]),
                "instr_valid": torch.from_numpy(self.instr_valid[instr]),
-               "actions": torch.from_numpy(self.cache.actions[window]), "action_valid": torch.from_numpy(valid),
+               "actions": torch.from_numpy(actions), "action_valid": torch.from_numpy(valid),
                "action_mask": torch.from_numpy(~think), "text_mask": torch.from_numpy(~think),
                "think": torch.from_numpy(think.astype(np.float32))}
         if self.cfg.reasoning:
@@ -380,46 +442,102 @@ def recorded_render(metas: list[dict]) -> dict:
     return {"mode": mode, "fast_version": version}
 
 
-def train_vla(dataset: Path | None, annotations: Path, out: Path, cfg: TrainConfig, model_cfg: VLAConfig,
-              *, cache: Path | None = None, progress=None, command: str = "") -> dict:
-    """Train (or resume) a VLA into run directory ``out``; returns the summary (also summary.json).
+@dataclass
+class Source:
+    """One annotated dataset of the training mixture, cached and labelled."""
 
-    ``progress(stage, done, total, metrics)``: stage "cache" (episodes decoded) or "train"."""
+    name: str
+    frames: FrameCache
+    labels: Labels
+    batcher: Batcher | None
+    train: np.ndarray  # frames that give action + text samples
+    think_rows: np.ndarray  # rows of labels.think_frames that lie in training episodes
+    weight: float
+
+
+def _sources(annotations: list[Path], dataset: Path | None, cfg: TrainConfig):
+    """(AnnotatedDataset, episodes that count, train episodes, held-out episodes) per annotation
+    directory. The first is the demonstrations: it alone holds episodes out for the held-out check."""
     from seal.annotate.loader import AnnotatedDataset
     from seal.train.pipeline import split_episodes
 
+    out = []
+    for i, a in enumerate(annotations):
+        ann = AnnotatedDataset(Path(a), Path(dataset) if dataset and i == 0 else None)
+        annotated = ann.episodes
+        dagger = any(ann.records[e].get("frame_labels") for e in annotated)
+        # Imitation learns from demonstrations that reached the goal; failures recorded for the value
+        # function (`seal demos record --keep-failures`) are left out. A DAgger episode's labels are the
+        # teacher's, right or wrong as the rollout went, so every one of them counts.
+        episodes = annotated if dagger else [e for e in annotated if _succeeded(ann.source.episode_meta(e))]
+        if not episodes:
+            raise InvalidInput(f"{a} has no successfully annotated episode of a successful demonstration "
+                               f"({len(annotated)} annotated, none marked success)")
+        if i == 0:
+            tr, held = split_episodes(len(episodes), cfg.holdout, cfg.seed)
+            tr, held = [episodes[j] for j in tr], [episodes[j] for j in held]
+        else:
+            tr, held = list(episodes), []
+        out.append((ann, annotated, tr, held))
+    return out
+
+
+def train_vla(dataset: Path | None, annotations: Path | list[Path], out: Path, cfg: TrainConfig, model_cfg: VLAConfig,
+              *, cache: Path | None = None, progress=None, command: str = "", mix: list[float] | None = None,
+              init_from: str | None = None) -> dict:
+    """Train (or resume) a VLA into run directory ``out``; returns the summary (also summary.json).
+
+    ``annotations``: one annotation directory or several (demonstrations first, then DAgger rounds);
+    ``mix``: the share of each batch drawn from each (default: in proportion to their frames).
+    ``init_from``: a VLA checkpoint to fine-tune (its network shape, tokenizer and normalization;
+    ``model_cfg`` is then ignored).
+    ``progress(stage, done, total, metrics)``: stage "cache" (episodes decoded) or "train"."""
     out = Path(out)
     say = progress or (lambda *a, **k: None)
     torch.set_num_threads(cfg.threads)
-    ann = AnnotatedDataset(Path(annotations), Path(dataset) if dataset else None)
-    # Imitation learns from demonstrations that reached the goal; failures recorded for the value
-    # function (`seal demos record --keep-failures`) are left out here.
-    annotated = ann.episodes
-    episodes = [e for e in annotated if _succeeded(ann.source.episode_meta(e))]
-    if not episodes:
-        raise InvalidInput(f"{annotations} has no successfully annotated episode of a successful demonstration "
-                           f"({len(annotated)} annotated, none marked success)")
-    train_eps, held_eps = split_episodes(len(episodes), cfg.holdout, cfg.seed)
-    train_eps, held_eps = [episodes[i] for i in train_eps], [episodes[i] for i in held_eps]
+    annotations = [Path(annotations)] if isinstance(annotations, (str, Path)) else [Path(a) for a in annotations]
+    if not annotations:
+        raise InvalidInput("seal train vla needs at least one --annotations directory")
+    if mix is not None and (len(mix) != len(annotations) or any(not w >= 0 for w in mix) or sum(mix) <= 0):
+        raise InvalidInput(f"--mix needs one weight >= 0 per --annotations directory ({len(annotations)}), not all "
+                           f"zero; got {mix}")
+    sources = _sources(annotations, dataset, cfg)
+    ann, annotated, train_eps, held_eps = sources[0]
+    episodes = train_eps + held_eps
+    init = None
+    if init_from:
+        from seal.policies.vla.locate import resolve_checkpoint
+
+        init = load_checkpoint(resolve_checkpoint(init_from))
+        model_cfg = init[0].cfg
     out.mkdir(parents=True, exist_ok=True)  # not before: annotations that cannot be used leave no empty run directory
 
-    # tokenizer: trained once per run on the project's text and this data's labels
+    # tokenizer: trained once per run on the project's text and this data's labels (or the initial model's)
     tok_path = out / TOKENIZER
     if tok_path.is_file():
         tok = VLATokenizer.load(tok_path)
+    elif init is not None:
+        tok = init[1]
+        tok_path.write_text(tok.to_json())
     else:
         tok = train_tokenizer(project_texts() + corpus_from_annotations(ann.records), model_cfg.vocab_size)
         tok_path.write_text(tok.to_json())
     model_cfg = replace(model_cfg, vocab_size=tok.vocab_size)
 
-    frames = build_cache(ann.source, train_eps + held_eps, Path(cache) if cache else out / "cache",
-                         model_cfg.image_size, progress=lambda i, n: say("cache", i, n))
-    labels = make_labels(frames, ann.records)
-    batcher = Batcher(frames, labels, tok, model_cfg)
+    built: list[Source] = []
+    for i, (a, _, tr, held) in enumerate(sources):
+        where = Path(cache) if cache else out / "cache"
+        where = where if len(sources) == 1 else where / f"s{i}"
+        fc = build_cache(a.source, tr + held, where, model_cfg.image_size, progress=lambda k, n: say("cache", k, n))
+        lab = make_labels(fc, a.records, a.root)
+        n_tr = int(sum(fc.lengths[: len(tr)]))
+        usable = np.ones(len(fc.states), bool) if lab.usable is None else lab.usable
+        built.append(Source(str(a.root), fc, lab, Batcher(fc, lab, tok, model_cfg),
+                            np.flatnonzero(usable[:n_tr]), np.flatnonzero(lab.think_frames < n_tr),
+                            float(mix[i]) if mix else float(n_tr)))
+    frames, labels, batcher = built[0].frames, built[0].labels, built[0].batcher
     n_train = int(sum(frames.lengths[: len(train_eps)]))
-    train_frames = np.arange(n_train)
-    think_rows = np.flatnonzero(labels.think_frames < n_train)
-    fingerprint = _fingerprint(frames, labels, model_cfg)
+    fingerprint = _fingerprint_all(built, model_cfg)
 
     with torch.random.fork_rng(devices=[]):  # seeded initial weights without touching the caller's RNG
         torch.manual_seed(cfg.seed)
@@ -434,15 +552,25 @@ def train_vla(dataset: Path | None, annotations: Path, out: Path, cfg: TrainConf
         _restore(resume, model, opt, state, cfg, model_cfg, fingerprint)
         _truncate_metrics(out / METRICS, state.step)
     else:
-        s, a = frames.states[:n_train], frames.actions[:n_train]
-        model.set_normalization(s.mean(0), s.std(0), a.mean(0), a.std(0))
+        if init is not None:  # its weights and normalization: the fine-tune starts where it ended
+            model.load_state_dict(init[0].state_dict())
+        else:
+            s, a = frames.states[:n_train], frames.actions[:n_train]
+            model.set_normalization(s.mean(0), s.std(0), a.mean(0), a.std(0))
         (out / METRICS).unlink(missing_ok=True)
     manifest = {"command": command, "dataset": str(Path(ann.source.root).resolve()),
                 "render": recorded_render([ann.source.episode_meta(e) for e in episodes]),
-                "annotations": str(Path(annotations).resolve()), "train_episodes": len(train_eps),
+                "annotations": str(Path(annotations[0]).resolve()), "train_episodes": len(train_eps),
                 "failed_demos_left_out": len(annotated) - len(episodes),
                 "heldout_episodes": held_eps, "train_frames": n_train, "code_version": _code_version(),
                 "train_config": asdict(cfg)}
+    if len(built) > 1 or init is not None:
+        total = sum(b.weight for b in built)
+        manifest["sources"] = [{"annotations": str(Path(b.name).resolve()), "episodes": len(b.frames.episodes),
+                                "frames": int(len(b.frames.states)), "usable_frames": int(len(b.train)),
+                                "think_samples": int(len(b.think_rows)), "share": round(b.weight / total, 4)}
+                               for b in built]
+        manifest["init_from"] = str(init_from) if init_from else None
     held = _heldout_starts(frames, len(train_eps), cfg.eval_samples)
     last_eval: dict = {}
     last: dict = {}
@@ -455,7 +583,7 @@ def train_vla(dataset: Path | None, annotations: Path, out: Path, cfg: TrainConf
         with stop, open(out / METRICS, "a") as log:
             while state.step < cfg.steps:
                 stop.check()
-                batch = _draw(batcher, labels, train_frames, think_rows, cfg, model_cfg, state)
+                batch = _draw_mixture(built, cfg, model_cfg, state)
                 for group in opt.param_groups:
                     group["lr"] = learning_rate(cfg, state.step)
                 with torch.autocast("cpu" if cfg.device == "cpu" else "cuda", dtype=torch.bfloat16, enabled=cfg.bf16):
@@ -549,7 +677,22 @@ def _draw(batcher: Batcher, labels: Labels, train_frames, think_rows, cfg: Train
         frames = np.concatenate([frames, labels.think_frames[pick]])
         reason = np.concatenate([reason, labels.think_reason[pick]])
     think = np.arange(len(frames)) >= cfg.batch_size - n_think
-    return batcher.batch(frames, reason, think, cfg.shift, state.gen, cfg.device)
+    drop = None
+    if cfg.instruction_dropout and model_cfg.reasoning:  # ordinary samples only: they carry a sub-plan
+        drop = (state.rng.random(len(frames)) < cfg.instruction_dropout) & ~think
+    return batcher.batch(frames, reason, think, cfg.shift, state.gen, cfg.device, drop=drop)
+
+
+def _draw_mixture(sources: list[Source], cfg: TrainConfig, model_cfg: VLAConfig, state: RunState) -> dict:
+    """One batch: each sample's source drawn by weight, then `_draw` within each source."""
+    if len(sources) == 1:
+        s = sources[0]
+        return _draw(s.batcher, s.labels, s.train, s.think_rows, cfg, model_cfg, state)
+    w = np.asarray([s.weight for s in sources])
+    counts = state.rng.multinomial(cfg.batch_size, w / w.sum())
+    parts = [_draw(s.batcher, s.labels, s.train, s.think_rows, replace(cfg, batch_size=int(c)), model_cfg, state)
+             for s, c in zip(sources, counts) if c]
+    return {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
 
 
 def _restore(where: Path, model, opt, state: RunState, cfg: TrainConfig, model_cfg: VLAConfig, fingerprint: str):
@@ -591,6 +734,14 @@ def _fingerprint(frames: FrameCache, labels: Labels, model_cfg: VLAConfig) -> st
     h.update(labels.reason.tobytes())
     h.update("\n".join(labels.texts).encode())
     return h.hexdigest()[:12]
+
+
+def _fingerprint_all(sources: list[Source], model_cfg: VLAConfig) -> str:
+    """The data a run trains on; one source keeps the single-dataset fingerprint of earlier runs."""
+    one = [_fingerprint(s.frames, s.labels, model_cfg) for s in sources]
+    if len(sources) == 1:
+        return one[0]
+    return hashlib.sha1(json.dumps([one, [s.weight for s in sources]]).encode()).hexdigest()[:12]
 
 
 def _heldout_starts(frames: FrameCache, n_train_eps: int, limit: int) -> list[int]:

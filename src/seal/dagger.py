@@ -1,0 +1,388 @@
+"""`seal demos dagger`: the learned VLA acts, the scripted expert labels the states it reaches.
+
+DAgger (Ross et al., 2011) with the scripted expert as the teacher. An episode starts from a
+freshly sampled start (never an official init state; its own seed namespace per round, apart from
+the recordings' and the held-out rollouts'); at every chunk boundary (every 5 steps) the state is
+recorded, as the VLA sees it (both cameras at its size, in its render model, and the 8-d state),
+together with what the expert says about *that exact state*:
+
+- the reasoning it would write there (plans, done, now: `ScriptedExpert.reason`),
+- the 16-step action chunk it would act with (`ScriptedExpert.act` on that reasoning),
+- whether the VLA should think now: the sub-plan the VLA is acting on is not the one the expert
+  says is next (done already, skipped, or garbled text), and the VLA's own reasoning text (the
+  stale text a think sample is conditioned on).
+
+Then a chunk is executed: the VLA's own (re-reasoning first when its think head fires), or with
+probability ``beta`` the expert's (the DAgger mixture; beta = 1 is plain expert recording).
+
+Where the teacher has no answer (a motion primitive that cannot plan from this state, a skill that
+says "done" while its sub-goal does not hold, a non-finite chunk), the frame is kept with
+``valid = False`` and the reason; training never uses its action or text label (`seal train vla`).
+
+Output: ``OUT/dataset`` is a LeRobot v2.1 dataset with one frame per chunk boundary (``action`` is the
+first step of the expert's chunk); ``OUT/annotations`` is an annotation sidecar in `seal annotate`'s
+layout whose per-episode label files carry, per frame, the expert's reasoning text, the VLA's,
+the think label, the validity and the whole expert chunk. `seal train vla --annotations
+DEMOS_ANN,OUT/annotations --mix ...` trains on both. Resumable like `seal demos record`: every
+attempt is logged, and the same command continues where it stopped.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from seal.datasets import Episode, LeRobotWriter
+from seal.errors import InvalidInput, SealError
+from seal.policies.base import ACTION_HORIZON, PREDICT_HORIZON, Reasoning
+from seal.sim.fast_assets import CACHE_VERSION as FAST_VERSION
+from seal.sim.suites import get_task, task_count
+
+ATTEMPTS = "attempts.jsonl"
+DATASET_DIR = "dataset"
+ANNOTATIONS_DIR = "annotations"
+BACKEND = "dagger"
+
+
+def dagger_seed(task_key: str, round_: int, episode: int) -> int:
+    """First seed tried for a DAgger start: its own namespace per round, so no round shares a start
+    with another, with the recordings (`seal.demos.start_seed`) or with held-out rollouts."""
+    from seal.demos import start_seed
+
+    return start_seed(task_key, episode, namespace=f"dagger{round_}")
+
+
+@dataclass(frozen=True)
+class DaggerJob:
+    suite: str
+    task_id: int
+    episode: int
+    round: int
+    ckpt: str
+    beta: float
+    render_mode: str
+    image_size: int
+    max_steps: int | None = None
+
+
+@dataclass
+class TeacherLabel:
+    reasoning: Reasoning
+    chunk: np.ndarray  # (PREDICT_HORIZON, 7)
+    valid: bool
+    why: str = ""  # why the teacher has no answer (valid False)
+
+
+def teacher_label(expert, obs) -> TeacherLabel:
+    """What the scripted expert would write and do in ``obs``'s state (it reads only the scene)."""
+    reasoning = expert.reason(obs)
+    empty = np.zeros((PREDICT_HORIZON, 7), np.float32)
+    if reasoning.finished:
+        return TeacherLabel(reasoning, empty, False, "the task's goal holds: nothing left to do")
+    expert.begin(1)
+    try:
+        chunk = expert.act([obs], reasoning)[0]
+    except SealError as exc:  # a motion primitive that cannot plan from here
+        return TeacherLabel(reasoning, empty, False, f"no plan: {exc}")
+    if chunk.think:
+        return TeacherLabel(reasoning, empty, False, f"the skill for {reasoning.now!r} says done, its sub-goal does not hold")
+    actions = np.asarray(chunk.actions, np.float32)
+    if not np.isfinite(actions).all():
+        return TeacherLabel(reasoning, empty, False, "non-finite chunk")
+    return TeacherLabel(reasoning, actions, True)
+
+
+@dataclass
+class DaggerFrames:
+    agent: list = field(default_factory=list)
+    wrist: list = field(default_factory=list)
+    states: list = field(default_factory=list)
+    rows: list = field(default_factory=list)  # per frame: labels (see `label_columns`)
+
+
+# One world and one policy per process, rebuilt only when the task or checkpoint changes.
+_CACHE: dict = {}
+
+
+def _world_and_policy(job: DaggerJob):
+    from seal.policies.vla.policy import VLAPolicy
+    from seal.sim.world import LiberoWorld
+
+    key = (job.suite, job.task_id, job.render_mode)
+    if _CACHE.get("world_key") != key:
+        if "world" in _CACHE:
+            _CACHE.pop("world").close()
+        _CACHE["world"] = LiberoWorld(get_task(job.suite, job.task_id), render_mode=job.render_mode)
+        _CACHE["world_key"] = key
+    if _CACHE.get("ckpt") != job.ckpt:
+        _CACHE["policy"] = VLAPolicy.load(job.ckpt)
+        _CACHE["ckpt"] = job.ckpt
+    return _CACHE["world"], _CACHE["policy"]
+
+
+def run_dagger_episode(job: DaggerJob) -> tuple[DaggerJob, dict, Episode | None, list[dict]]:
+    """One rollout of the VLA (mixed with the expert at rate ``beta``), labelled at every chunk boundary."""
+    from seal.policies.expert.policy import ScriptedExpert
+
+    world, vla = _world_and_policy(job)
+    expert = ScriptedExpert.for_world(world)
+    seed = world.reset_sampled(dagger_seed(world.task.key, job.round, job.episode))
+    vla.reset(world.instruction, seed)
+    expert.reset(world.instruction, seed)
+    mix = np.random.default_rng([seed, job.round, 0xDA66])
+    atoms = expert.privileged_atoms()
+    max_steps = job.max_steps or world.task.max_steps
+    rec = DaggerFrames()
+    obs = world.observe(images=job.image_size, privileged_atoms=atoms)
+    mine = vla.reason(obs)
+    vla.begin(1)
+    ended, executed = "steps", {"vla": 0, "expert": 0}
+    sim_error = False
+    try:
+        while not world.success() and world.steps < max_steps:
+            label = teacher_label(expert, obs)
+            # think: the sub-plan the VLA acts on is not the next one (done already, skipped or garbled)
+            think = mine.now != label.reasoning.now
+            rec.agent.append(obs.agent)
+            rec.wrist.append(obs.wrist)
+            rec.states.append(obs.state.astype(np.float32))
+            rec.rows.append({"reasoning": label.reasoning.text(), "now": label.reasoning.now,
+                             "vla_reasoning": mine.text(), "vla_now": mine.now, "think": bool(think),
+                             "valid": label.valid, "why": label.why, "chunk": label.chunk.reshape(-1),
+                             "step": world.steps})
+            if mine.finished:  # the VLA declared the task done while it is not: a label, and the end
+                ended = "vla_done"
+                break
+            if label.valid and mix.random() < job.beta:
+                actions = label.chunk[:ACTION_HORIZON]
+                executed["expert"] += 1
+            else:
+                chunk = vla.act([obs], mine)[0]
+                if chunk.think:
+                    mine = vla.reason(obs)
+                    vla.begin(1)
+                    if mine.finished:
+                        continue  # recorded at the next boundary (same state) with its new text
+                    chunk = vla.act([obs], mine)[0]
+                actions = chunk.actions[:ACTION_HORIZON]
+                executed["vla"] += 1
+            for i, action in enumerate(actions):
+                world.step(action)
+                last = i == len(actions) - 1
+                obs = world.observe(images=job.image_size if last else False, privileged_atoms=atoms)
+                if world.success() or world.steps >= max_steps:
+                    break  # the episode ends here: no boundary after it to record
+    except SealError as exc:
+        sim_error, ended = True, f"error: {exc}"
+    success = bool(world.success()) and not sim_error
+    if success:
+        ended = "success"
+    attempt = {"suite": job.suite, "task_id": job.task_id, "init_index": job.episode, "round": job.round,
+               "start_seed": seed, "success": success, "steps": world.steps, "ended": ended, "frames": len(rec.rows),
+               "invalid_labels": sum(not r["valid"] for r in rec.rows), "executed": executed}
+    if not rec.rows:
+        return job, attempt, None, []
+    reasons = [r["reasoning"] for r in rec.rows]
+    first = next((r for r in rec.rows if r["valid"]), rec.rows[0])
+    plans = list(expert.plans(obs.scene)) if obs.scene is not None else []
+    episode = Episode(
+        instruction=world.instruction, agent_images=np.stack(rec.agent), wrist_images=np.stack(rec.wrist),
+        states=np.stack(rec.states), actions=np.stack([r["chunk"][:7] for r in rec.rows]).astype(np.float32),
+        subplans=[p.text for p in plans], critical_frames=[-1] * len(plans),
+        meta={"suite": job.suite, "task_id": job.task_id, "init_index": job.episode, "start": "sampled",
+              "start_seed": seed, "render_mode": job.render_mode, "image_size": job.image_size,
+              "fast_version": FAST_VERSION if job.render_mode == "fast" else None, "steps": world.steps,
+              # the frames are chunk boundaries of the VLA's rollout; every label is the expert's at that state
+              "success": success, "dagger": {"round": job.round, "beta": job.beta, "ckpt": job.ckpt,
+                                             "ended": ended, "executed": executed,
+                                             "frame_steps": [r["step"] for r in rec.rows]},
+              "reasoning": [[r["step"], t] for r, t in zip(rec.rows, reasons)], "first_label": first["reasoning"]})
+    return job, attempt, episode, rec.rows
+
+
+def _close() -> None:
+    world = _CACHE.pop("world", None)
+    if world is not None:
+        world.close()
+    _CACHE.clear()
+
+
+@dataclass
+class DaggerSummary:
+    recorded: int = 0
+    successes: int = 0
+    skipped: int = 0
+    frames: int = 0
+    invalid_labels: int = 0
+    think_labels: int = 0
+    vla_done_early: int = 0
+    why: dict = field(default_factory=dict)  # invalid-label reason (its first words) -> count
+
+
+def _attempted(root: Path, settings: dict) -> set[tuple[str, int, int]]:
+    path = root / ATTEMPTS
+    if not path.is_file():
+        return set()
+    done = set()
+    for line in path.read_text().splitlines():
+        try:
+            rec = json.loads(line)
+        except json.JSONDecodeError:
+            continue  # a torn last line after a crash: that attempt simply runs again
+        done.add((rec["suite"], rec["task_id"], rec["init_index"]))
+    # an episode whose labels were committed before a crash cut off its attempt line is done too
+    from seal.annotate.pipeline import ANNOTATIONS
+
+    for line in ((root / ANNOTATIONS_DIR / ANNOTATIONS).read_text().splitlines()
+                 if (root / ANNOTATIONS_DIR / ANNOTATIONS).is_file() else []):
+        try:
+            rec = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if "start" in rec:
+            done.add(tuple(rec["start"]))
+    return done
+
+
+def collect_dagger(suite: str, out: Path, *, ckpt: str, episodes_per_task: int, round_: int = 1, beta: float = 0.0,
+                   tasks: list[int] | None = None, workers: int = 1, render_mode: str | None = None,
+                   max_steps: int | None = None, progress=None) -> DaggerSummary:
+    """Roll out ``ckpt`` on fresh starts and label every chunk boundary with the expert (resumable)."""
+    from seal.annotate.pipeline import ANNOTATIONS, INFO, LABELS_PATH, CHUNK_SIZE
+    from seal.policies.vla.locate import checkpoint_digest, resolve_checkpoint, trained_render
+    from seal.policies.vla.checkpoint import read_config
+
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise InvalidInput(f"--workers must be a positive integer, got {workers!r}")
+    if isinstance(episodes_per_task, bool) or not isinstance(episodes_per_task, int) or not 1 <= episodes_per_task <= 999:
+        raise InvalidInput(f"--episodes-per-task must be in 1..999, got {episodes_per_task!r}")
+    if isinstance(round_, bool) or not isinstance(round_, int) or round_ < 1:
+        raise InvalidInput(f"--round must be an integer >= 1, got {round_!r}")
+    if not isinstance(beta, (int, float)) or isinstance(beta, bool) or not 0.0 <= beta <= 1.0:
+        raise InvalidInput(f"--beta must be a probability in [0, 1] (the share of chunks the expert executes), got {beta!r}")
+    if max_steps is not None and (not isinstance(max_steps, int) or max_steps < ACTION_HORIZON):
+        raise InvalidInput(f"--max-steps must be >= {ACTION_HORIZON}, got {max_steps!r}")
+    tasks = list(range(task_count(suite))) if tasks is None else tasks
+    specs = [get_task(suite, t) for t in tasks]  # validates every id before any work
+    where = resolve_checkpoint(ckpt)
+    digest = checkpoint_digest(ckpt)  # refuses a damaged checkpoint before any output exists
+    config = read_config(where)
+    if not config.reasoning:
+        raise InvalidInput(f"{where} is a non-reasoning twin; DAgger labels reasoning, roll out the reasoning VLA")
+    render = render_mode or trained_render(ckpt)["mode"]
+    settings = {"ckpt_digest": digest, "round": round_, "beta": float(beta), "render_mode": render,
+                "image_size": config.image_size, "suite": suite, "max_steps": max_steps}
+    out = Path(out)
+    ann = out / ANNOTATIONS_DIR
+    info_path = ann / INFO
+    if info_path.is_file():
+        saved = json.loads(info_path.read_text()).get("dagger", {})
+        if saved != settings:
+            raise InvalidInput(f"{out} was collected with other settings ({saved}); resume it with the same "
+                               f"--ckpt/--round/--beta/--render, or collect into a new directory")
+    out.mkdir(parents=True, exist_ok=True)
+    ann.mkdir(parents=True, exist_ok=True)
+    if not info_path.is_file():
+        info_path.write_text(json.dumps({"format": 1, "source": str((out / DATASET_DIR).resolve()), "backend": BACKEND,
+                                         "horizon": ACTION_HORIZON, "dagger": settings}, indent=2) + "\n")
+    summary = DaggerSummary()
+    attempted = _attempted(out, settings)
+    with LeRobotWriter(out / DATASET_DIR, fps=4, image_size=config.image_size) as writer:
+        jobs = []
+        for spec in specs:
+            todo = [e for e in range(episodes_per_task) if (suite, spec.task_id, e) not in attempted]
+            summary.skipped += episodes_per_task - len(todo)
+            jobs += [DaggerJob(suite, spec.task_id, e, round_, str(where), float(beta), render, config.image_size,
+                               max_steps) for e in todo]
+        jobs.sort(key=lambda j: (j.episode, tasks.index(j.task_id)))  # every task about equally, early on
+        if progress:
+            progress(summary, len(jobs) + summary.skipped, advance=summary.skipped)
+
+        def finish(job: DaggerJob, attempt: dict, episode: Episode | None, rows: list[dict]) -> None:
+            if episode is not None:
+                index = writer.add(episode)
+                _write_labels(ann, index, episode, rows, LABELS_PATH, CHUNK_SIZE, ANNOTATIONS)
+                summary.recorded += 1
+                summary.frames += len(rows)
+                summary.invalid_labels += sum(not r["valid"] for r in rows)
+                summary.think_labels += sum(r["think"] for r in rows)
+                for r in rows:
+                    if not r["valid"]:
+                        key = r["why"].split(":")[0][:60]
+                        summary.why[key] = summary.why.get(key, 0) + 1
+            summary.successes += attempt["success"]
+            summary.vla_done_early += attempt["ended"] == "vla_done"
+            with open(out / ATTEMPTS, "a") as f:  # after the episode and its labels: a crash between redoes it
+                f.write(json.dumps(attempt) + "\n")
+            if progress:
+                progress(summary, len(jobs) + summary.skipped, advance=1)
+
+        if workers == 1:
+            try:
+                for job in jobs:
+                    finish(*run_dagger_episode(job))
+            finally:
+                _close()
+        else:
+            with multiprocessing.get_context("spawn").Pool(workers, initializer=_quiet_worker) as pool:
+                for result in pool.imap_unordered(run_dagger_episode, jobs, chunksize=1):
+                    finish(*result)
+    (out / "dagger_summary.json").write_text(json.dumps(asdict(summary) | {"settings": settings}, indent=2) + "\n")
+    return summary
+
+
+def _quiet_worker() -> None:
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops the pool
+
+
+def _write_labels(ann: Path, index: int, episode: Episode, rows: list[dict], labels_path: str, chunk_size: int,
+                  annotations: str) -> None:
+    import os
+
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    n = len(rows)
+    table = pa.table({
+        "episode_index": pa.array(np.full(n, index, np.int64)),
+        "frame_index": pa.array(np.arange(n, dtype=np.int64)),
+        "reasoning": pa.array([r["reasoning"] for r in rows]).dictionary_encode(),
+        "now": pa.array([r["now"] for r in rows]).dictionary_encode(),
+        "vla_reasoning": pa.array([r["vla_reasoning"] for r in rows]).dictionary_encode(),
+        "vla_now": pa.array([r["vla_now"] for r in rows]).dictionary_encode(),
+        "think": pa.array([r["think"] for r in rows], pa.bool_()),
+        "valid": pa.array([r["valid"] for r in rows], pa.bool_()),
+        "why": pa.array([r["why"] for r in rows]),
+        "step": pa.array([r["step"] for r in rows], pa.int64()),
+        "chunk": pa.array([r["chunk"].astype(np.float32).tolist() for r in rows], pa.list_(pa.float32(), PREDICT_HORIZON * 7)),
+    })
+    rel = labels_path.format(chunk=index // chunk_size, episode=index)
+    path = ann / rel
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    pq.write_table(table, tmp)
+    os.replace(tmp, path)
+    record = {"episode_index": index, "status": "ok", "backend": BACKEND, "model": episode.meta["dagger"]["ckpt"],
+              "instruction": episode.instruction, "length": n, "plans": list(episode.subplans),
+              "critical_moments": [], "labels_path": rel, "error": None, "frame_labels": True,
+              "start": [episode.meta["suite"], episode.meta["task_id"], episode.meta["init_index"]]}
+    with open(ann / annotations, "a") as f:
+        f.write(json.dumps(record) + "\n")
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def read_frame_labels(ann: Path, record: dict) -> dict[str, np.ndarray | list]:
+    """A DAgger episode's per-frame labels: texts, think, valid and chunks (T, 16, 7)."""
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(Path(ann) / record["labels_path"]).to_pydict()
+    chunks = np.asarray(table["chunk"], np.float32).reshape(-1, PREDICT_HORIZON, 7)
+    return {"reasoning": table["reasoning"], "vla_reasoning": table["vla_reasoning"], "now": table["now"],
+            "think": np.asarray(table["think"], bool), "valid": np.asarray(table["valid"], bool), "chunks": chunks}
