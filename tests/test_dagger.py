@@ -105,3 +105,20 @@ def test_bad_settings_are_refused_before_anything_is_written(tmp_path):
     with pytest.raises(InvalidInput, match="non-reasoning twin"):
         dagger.collect_dagger("libero_10", tmp_path / "b", ckpt="twin", episodes_per_task=1)
     assert not list(tmp_path.iterdir())
+
+
+def test_on_policy_figures_count_boundaries_and_committed_subplans():
+    from seal.policies.base import Reasoning
+
+    plans = ("pick up the book", "place it in the caddy")
+
+    def row(vla_now, done):
+        now = next((p for p in plans if p not in done), "")
+        return {"vla_now": vla_now, "now": now, "reasoning": Reasoning(plans, tuple(done), now).text()}
+
+    rows = [row("pick up the book", []), row("pick up the book", []),  # right, then held on too long:
+            row("pick up the book", [plans[0]]), row("place it in the caddy", [plans[0]])]
+    figures = dagger.on_policy_figures(rows, final_done=())
+    # 3 of 4 boundaries name the expert's next sub-plan; "pick" was done when the VLA moved on, "place" was not
+    assert figures == {"subplan_accuracy": 0.75, "alignment": 0.5, "committed": 2}
+    assert dagger.on_policy_figures(rows, final_done=plans)["alignment"] == 1.0

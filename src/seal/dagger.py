@@ -67,6 +67,7 @@ class DaggerJob:
     render_mode: str
     image_size: int
     max_steps: int | None = None
+    start_seed: int | None = None  # None: this round's own start (`dagger_seed`); held-out checks pass theirs
 
 
 @dataclass
@@ -130,7 +131,8 @@ def run_dagger_episode(job: DaggerJob) -> tuple[DaggerJob, dict, Episode | None,
 
     world, vla = _world_and_policy(job)
     expert = ScriptedExpert.for_world(world)
-    seed = world.reset_sampled(dagger_seed(world.task.key, job.round, job.episode))
+    first = job.start_seed if job.start_seed is not None else dagger_seed(world.task.key, job.round, job.episode)
+    seed = world.reset_sampled(first)
     vla.reset(world.instruction, seed)
     expert.reset(world.instruction, seed)
     mix = np.random.default_rng([seed, job.round, 0xDA66])
@@ -181,13 +183,17 @@ def run_dagger_episode(job: DaggerJob) -> tuple[DaggerJob, dict, Episode | None,
     success = bool(world.success()) and not sim_error
     if success:
         ended = "success"
+    held = [] if sim_error else list(world.goal_status().values())
     attempt = {"suite": job.suite, "task_id": job.task_id, "init_index": job.episode, "round": job.round,
                "start_seed": seed, "success": success, "steps": world.steps, "ended": ended, "frames": len(rec.rows),
-               "invalid_labels": sum(not r["valid"] for r in rec.rows), "executed": executed}
+               "invalid_labels": sum(not r["valid"] for r in rec.rows), "executed": executed,
+               "subgoals": round(sum(held) / len(held), 3) if held else 0.0}
     if not rec.rows:
         return job, attempt, None, []
+    final_done = () if sim_error else expert.reason(obs).done  # what holds where the episode stopped
+    attempt |= on_policy_figures(rec.rows, final_done)
     reasons = [r["reasoning"] for r in rec.rows]
-    first = next((r for r in rec.rows if r["valid"]), rec.rows[0])
+    first_valid = next((r for r in rec.rows if r["valid"]), rec.rows[0])
     plans = list(expert.plans(obs.scene)) if obs.scene is not None else []
     episode = Episode(
         instruction=world.instruction, agent_images=np.stack(rec.agent), wrist_images=np.stack(rec.wrist),
@@ -200,8 +206,30 @@ def run_dagger_episode(job: DaggerJob) -> tuple[DaggerJob, dict, Episode | None,
               "success": success, "dagger": {"round": job.round, "beta": job.beta, "ckpt": job.ckpt,
                                              "ended": ended, "executed": executed,
                                              "frame_steps": [r["step"] for r in rec.rows]},
-              "reasoning": [[r["step"], t] for r, t in zip(rec.rows, reasons)], "first_label": first["reasoning"]})
+              "reasoning": [[r["step"], t] for r, t in zip(rec.rows, reasons)], "first_label": first_valid["reasoning"]})
     return job, attempt, episode, rec.rows
+
+
+def on_policy_figures(rows: list[dict], final_done=()) -> dict:
+    """How the VLA's reasoning held up on its own states: ``subplan_accuracy`` (share of chunk
+    boundaries where its sub-plan is the one the expert says is next) and ``alignment`` (share of
+    the sub-plans it acted on, each span of one text, that were done when it moved on or stopped;
+    ``final_done``: the sub-plans the expert counts as done where the episode ended)."""
+    from seal.serving.protocol import parse_reasoning
+
+    if not rows:
+        return {"subplan_accuracy": None, "alignment": None, "committed": 0}
+    accuracy = sum(r["vla_now"] == r["now"] for r in rows) / len(rows)
+    spans, achieved = 0, 0
+    for i, r in enumerate(rows):
+        last = i + 1 == len(rows) or rows[i + 1]["vla_now"] != r["vla_now"]
+        if last and r["vla_now"]:
+            # done at the next boundary (after this span's last chunk), or where the episode stopped
+            done = parse_reasoning(rows[i + 1]["reasoning"]).done if i + 1 < len(rows) else final_done
+            spans += 1
+            achieved += r["vla_now"] in done
+    return {"subplan_accuracy": round(accuracy, 4), "alignment": round(achieved / spans, 4) if spans else None,
+            "committed": spans}
 
 
 def _close() -> None:

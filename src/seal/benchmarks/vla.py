@@ -25,7 +25,11 @@
   `ROLLOUT_EPISODE0`) nor an evaluation (official init states) uses, in ``--render`` mode (default
   fast): ``rollout_success``, ``rollout_subgoals`` (share of the task's goal atoms that hold at the
   end: partial progress) and one row per episode in ``rollouts``. A check of a run in progress
-  that never touches the evaluation starts.
+  that never touches the evaluation starts. For a reasoning model the scripted expert reads every
+  state the VLA reaches (`seal.dagger`, the expert never acting), adding ``onpolicy_subplan_accuracy``
+  (chunk boundaries where the VLA's sub-plan is the one the expert says is next),
+  ``onpolicy_alignment`` (sub-plans it acted on that were done when it moved on), ``vla_done_early``
+  (episodes it ended by declaring the task done while it was not) and ``teacher_unanswered``.
 - ``--size NAME``: without --ckpt, time the preset ``SIZES[NAME]`` instead of the default config;
 - ``--sizes S,M,L``: ``train_grid``, one row per preset x (bf16, fp32) x (1, 2 threads) with the
   median seconds per training step at batch 32 (how the default config was chosen).
@@ -250,6 +254,11 @@ def rollouts(ckpt: str, *, tasks: str, n: int, render: str, suite: str = "libero
         raise InvalidInput(f"--rollouts must be >= 1, got {n}")
     progress = progress or (lambda line: print(line, file=sys.stderr, flush=True))  # stdout is the JSON
     ids = parse_task_ids(suite, tasks) if tasks else list(range(task_count(suite)))
+    from seal.policies.vla.checkpoint import read_config
+    from seal.policies.vla.locate import resolve_checkpoint
+
+    if read_config(resolve_checkpoint(ckpt)).reasoning:  # labelled by the expert: on-policy reasoning figures too
+        return _labelled_rollouts(ckpt, ids, n=n, render=render, suite=suite, max_steps=max_steps, progress=progress)
     policy = VLAPolicy.load(ckpt)
     rows = []
     for task_id in ids:
@@ -269,4 +278,47 @@ def rollouts(ckpt: str, *, tasks: str, n: int, render: str, suite: str = "libero
             world.close()
     return {"rollout_success": round(float(np.mean([r["success"] for r in rows])), 3),
             "rollout_subgoals": round(float(np.mean([r["subgoals"] for r in rows])), 3),
+            "rollout_render": render, "rollouts": rows}
+
+
+def _labelled_rollouts(ckpt: str, ids: list[int], *, n: int, render: str, suite: str, max_steps: int | None,
+                       progress) -> dict:
+    """The reasoning VLA alone on the same fresh starts, with the scripted expert reading every state it
+    reaches (`seal.dagger`, beta 0: the expert never acts): success, sub-goals, and how its reasoning held
+    up on its own states (sub-plan accuracy against the expert, alignment of the sub-plans it acted on)."""
+    from seal.dagger import DaggerJob, _close, run_dagger_episode
+    from seal.demos import start_seed
+    from seal.policies.vla.checkpoint import read_config
+    from seal.policies.vla.locate import resolve_checkpoint
+    from seal.sim.suites import get_task
+
+    where = resolve_checkpoint(ckpt)
+    size = read_config(where).image_size
+    rows = []
+    try:
+        for task_id in ids:
+            key = get_task(suite, task_id).key
+            for e in range(n):
+                job = DaggerJob(suite, task_id, ROLLOUT_EPISODE0 + e, 0, str(where), 0.0, render, size, max_steps,
+                                start_seed=start_seed(key, ROLLOUT_EPISODE0 + e))
+                _, a, _, _ = run_dagger_episode(job)
+                rows.append({"task": key, "start_seed": a["start_seed"], "success": a["success"], "steps": a["steps"],
+                             "subgoals": a["subgoals"],
+                             "ended": a["ended"], "subplan_accuracy": a["subplan_accuracy"],
+                             "alignment": a["alignment"], "committed": a["committed"],
+                             "invalid_labels": a["invalid_labels"], "frames": a["frames"]})
+                if progress:
+                    progress(f"rollout {key} #{e}: success={a['success']} steps={a['steps']} ended={a['ended']} "
+                             f"subplan_accuracy={a['subplan_accuracy']} alignment={a['alignment']}")
+    finally:
+        _close()
+    frames = sum(r["frames"] for r in rows)
+    committed = sum(r["committed"] for r in rows)
+    return {"rollout_success": round(float(np.mean([r["success"] for r in rows])), 3),
+            "rollout_subgoals": round(float(np.mean([r["subgoals"] for r in rows])), 3),
+            # pooled over chunk boundaries / committed sub-plans, not averaged per episode
+            "onpolicy_subplan_accuracy": round(sum(r["subplan_accuracy"] * r["frames"] for r in rows) / max(frames, 1), 4),
+            "onpolicy_alignment": round(sum((r["alignment"] or 0) * r["committed"] for r in rows) / max(committed, 1), 4),
+            "vla_done_early": sum(r["ended"] == "vla_done" for r in rows),
+            "teacher_unanswered": round(sum(r["invalid_labels"] for r in rows) / max(frames, 1), 4),
             "rollout_render": render, "rollouts": rows}
