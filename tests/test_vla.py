@@ -437,3 +437,27 @@ def test_a_damaged_shipped_checkpoint_is_refused_on_every_path(command, tmp_path
     assert main(argv) == 2
     assert "does not match the sha256" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["damaged"]  # no database, no run folder
+
+
+def test_a_reference_rollout_says_whether_this_machine_drives_the_checkpoint_alike(tmp_path):
+    """Recorded and checked on one machine it reproduces; a manifest from a machine whose kernels round
+    otherwise (stood in for by an edited record) is reported with how far and how soon it drifts."""
+    import shutil
+
+    from seal.benchmarks.vla import check_reference
+    from seal.policies.vla.locate import SHIPPED
+
+    ckpt = tmp_path / "twin"
+    shutil.copytree(SHIPPED["twin"], ckpt)
+    assert check_reference(str(ckpt), record=True)["recorded"]
+    same = check_reference(str(ckpt))
+    assert same["reproduced"] is True and same["max_abs_action_diff"] == 0.0 and same["first_step_apart"] is None
+    manifest = json.loads((ckpt / "manifest.json").read_text())
+    manifest["reference_rollout"]["digest"] = "0" * 16
+    manifest["reference_rollout"]["actions"][30][0] += 0.01
+    (ckpt / "manifest.json").write_text(json.dumps(manifest))
+    other = check_reference(str(ckpt))
+    assert other["reproduced"] is False and other["first_step_apart"] == 30
+    assert other["max_abs_action_diff"] == pytest.approx(0.01, abs=1e-4)
+    # the shipped checkpoints carry theirs
+    assert len(json.loads((SHIPPED["reason"] / "manifest.json").read_text())["reference_rollout"]["actions"]) == 40

@@ -907,6 +907,9 @@ def _add_bench(sub) -> None:
     bench.add_argument("--dart", type=_NONNEGATIVE, default=0.0,
                        help="expert: perturb every executed chunk by a Gaussian offset of this std (as `seal demos "
                             "record --dart` does): how much perturbation the expert survives")
+    bench.add_argument("--record-reference", action="store_true",
+                       help="vla with --ckpt: write this machine's reference rollout (an action digest) into the "
+                            "checkpoint's manifest; without it the bench reports whether this machine reproduces it")
     bench.add_argument("--rollouts", type=_INDEX, default=0,
                        help="vla with --ckpt: closed-loop episodes per task on fresh sampled starts (default 0: none)")
     bench.add_argument("--tasks", default="", help="comma-separated task ids (expert: all; steer: 0,1,7; runtime: 5; render: 0,3,9)")

@@ -225,6 +225,8 @@ def run(args) -> dict:
                           "split": "checkpoint manifest" if held else "trainer's seeded split"}
     else:
         out["heldout"] = "no --annotations given: subplan_accuracy and action_mse are null"
+    if args.ckpt:  # does this machine drive the checkpoint the way the machine that shipped it did?
+        out["reference_rollout"] = check_reference(str(path), record=bool(getattr(args, "record_reference", False)))
     if getattr(args, "rollouts", 0):
         from seal.policies.vla.locate import trained_render
 
@@ -322,3 +324,63 @@ def _labelled_rollouts(ckpt: str, ids: list[int], *, n: int, render: str, suite:
             "vla_done_early": sum(r["ended"] == "vla_done" for r in rows),
             "teacher_unanswered": round(sum(r["invalid_labels"] for r in rows) / max(frames, 1), 4),
             "rollout_render": render, "rollouts": rows}
+
+
+REFERENCE = {"suite": "libero_10", "task": 5, "episode": 999, "steps": 40}  # a start no recording or rollout uses
+
+
+def reference_rollout(ckpt: str) -> dict:
+    """The VLA alone for ``REFERENCE["steps"]`` steps from one fixed fresh start, in the render model it
+    was trained in: a digest of the executed actions (float32 bytes) and the reasoning it wrote, and the
+    actions themselves (rounded) to say how far another machine is off when the digest differs."""
+    import hashlib
+
+    from seal.demos import start_seed
+    from seal.episode import Recording, run_policy_episode
+    from seal.policies.vla.locate import trained_render
+    from seal.policies.vla.policy import VLAPolicy
+    from seal.sim.world import LiberoWorld
+
+    policy = VLAPolicy.load(ckpt)
+    world = LiberoWorld((REFERENCE["suite"], REFERENCE["task"]), render_mode=trained_render(ckpt)["mode"])
+    try:
+        rec = Recording()
+        r = run_policy_episode(world, policy, init_index=REFERENCE["episode"], max_steps=REFERENCE["steps"],
+                               recording=rec, image_size=policy.image_size,
+                               start_seed=start_seed(world.task.key, REFERENCE["episode"]))
+    finally:
+        world.close()
+    actions = np.asarray(rec.actions, np.float32)
+    h = hashlib.sha256(actions.tobytes())
+    h.update("\n".join(t for _, t in r.reasoning).encode())
+    return {**REFERENCE, "start_seed": r.start_seed, "digest": h.hexdigest()[:16], "executed": len(actions),
+            "actions": np.round(actions.astype(np.float64), 5).tolist()}
+
+
+def check_reference(ckpt: str, *, record: bool = False) -> dict:
+    """This machine's reference rollout against the one the manifest records. ``record``: write this
+    machine's into the manifest instead (what shipping a checkpoint does)."""
+    import json
+
+    from seal.checkpoint import MANIFEST, atomic_write
+    from seal.policies.vla.locate import resolve_checkpoint
+
+    where = resolve_checkpoint(ckpt)
+    here = reference_rollout(ckpt)
+    manifest = json.loads((where / MANIFEST).read_text())
+    if record:
+        manifest["reference_rollout"] = here
+        atomic_write(where / MANIFEST, lambda p: p.write_text(json.dumps(manifest, indent=2) + "\n"))
+        return {"recorded": True, "digest": here["digest"]}
+    shipped = manifest.get("reference_rollout")
+    if not shipped:
+        return {"reproduced": None, "digest": here["digest"],
+                "note": "the manifest records no reference rollout (seal bench vla --ckpt X --record-reference)"}
+    a, b = np.asarray(here["actions"]), np.asarray(shipped["actions"])
+    n = min(len(a), len(b))
+    gap = np.abs(a[:n] - b[:n]).max(axis=1) if n else np.zeros(0)
+    apart = np.flatnonzero(gap > 1e-3)
+    return {"reproduced": here["digest"] == shipped["digest"], "digest": here["digest"],
+            "manifest_digest": shipped["digest"], "max_abs_action_diff": round(float(gap.max()) if n else 0.0, 6),
+            # the first executed step whose action differs by more than 1e-3 (None: never): how soon it drifts
+            "first_step_apart": int(apart[0]) if len(apart) else None}
