@@ -35,11 +35,12 @@ def labelled(tmp_path_factory):
     dagger.teacher_label = capturing
     try:
         _, attempt, episode, rows = dagger.run_dagger_episode(job)
-        world = dagger._CACHE["world"]
-        yield attempt, episode, rows, snaps, world
     finally:
         dagger.teacher_label = original
-        dagger._close()
+    world = dagger._CACHE.pop("world")  # this module's now: a later collection's clean-up must not close it
+    dagger._close()
+    yield attempt, episode, rows, snaps, world
+    world.close()
 
 
 def test_every_label_is_the_experts_answer_for_that_exact_state(labelled):
@@ -122,3 +123,11 @@ def test_on_policy_figures_count_boundaries_and_committed_subplans():
     # 3 of 4 boundaries name the expert's next sub-plan; "pick" was done when the VLA moved on, "place" was not
     assert figures == {"subplan_accuracy": 0.75, "alignment": 0.5, "committed": 2}
     assert dagger.on_policy_figures(rows, final_done=plans)["alignment"] == 1.0
+
+
+def test_the_teacher_check_lets_the_expert_finish_alone_from_a_reached_state(labelled):
+    """From the last labelled state of the tiny rollout (the book not yet in the caddy), the clean
+    expert alone solves the task: the teacher had a good answer there, not only a label."""
+    _, _, rows, snaps, world = labelled
+    result = dagger.teacher_recovers(world, snaps[-1], max_steps=400)
+    assert result["recovered"] and result["now"] == rows[-1]["now"] and result["steps"] <= 400

@@ -103,7 +103,8 @@ def _cmd_dagger(args) -> int:
 
         summary = collect_dagger(args.suite, Path(args.out), ckpt=args.ckpt, episodes_per_task=args.episodes_per_task,
                                  round_=args.round, beta=args.beta, tasks=tasks, workers=args.workers,
-                                 render_mode=args.render, max_steps=args.max_steps, progress=progress)
+                                 render_mode=args.render, max_steps=args.max_steps,
+                                 teacher_check=args.teacher_check, progress=progress)
     print(json.dumps(summary.__dict__))
     return 0
 
@@ -637,6 +638,9 @@ def _add_demos(sub) -> None:
     dag.add_argument("--render", default=None, choices=["stock", "fast"],
                      help="render model (default: the one the checkpoint was trained in)")
     dag.add_argument("--max-steps", type=_COUNT, default=None, help="step budget (default: the task's)")
+    dag.add_argument("--teacher-check", action=argparse.BooleanOptionalAction, default=True,
+                     help="after each rollout, let the expert finish alone from one of its states: how often the "
+                          "teacher's labels lead somewhere (default on; ~10 s of physics per rollout)")
     dag.add_argument("--workers", type=_COUNT, default=1, help="episodes in parallel (one simulator each)")
     dag.add_argument("--out", required=True)
     dag.set_defaults(func=_cmd_dagger)

@@ -68,6 +68,7 @@ class DaggerJob:
     image_size: int
     max_steps: int | None = None
     start_seed: int | None = None  # None: this round's own start (`dagger_seed`); held-out checks pass theirs
+    teacher_check: bool = False  # also let the expert finish alone from one boundary (`teacher_recovers`)
 
 
 @dataclass
@@ -144,8 +145,13 @@ def run_dagger_episode(job: DaggerJob) -> tuple[DaggerJob, dict, Episode | None,
     vla.begin(1)
     ended, executed = "steps", {"vla": 0, "expert": 0}
     sim_error = False
+    # the boundary the teacher check starts from: the first at or after a step drawn in advance
+    check_at = int(np.random.default_rng([seed, job.round, 0x7EAC]).integers(0, max_steps)) if job.teacher_check else None
+    check = None
     try:
         while not world.success() and world.steps < max_steps:
+            if check_at is not None and check is None and world.steps >= check_at:
+                check = (world.snapshot(), world.steps, len(rec.rows))
             label = teacher_label(expert, obs)
             # think: the sub-plan the VLA acts on is not the next one (done already, skipped or garbled)
             think = mine.now != label.reasoning.now
@@ -192,6 +198,9 @@ def run_dagger_episode(job: DaggerJob) -> tuple[DaggerJob, dict, Episode | None,
         return job, attempt, None, []
     final_done = () if sim_error else expert.reason(obs).done  # what holds where the episode stopped
     attempt |= on_policy_figures(rec.rows, final_done)
+    if check is not None:
+        attempt["teacher_check"] = teacher_recovers(world, check[0], max_steps) | {"from_step": check[1],
+                                                                                  "frame": check[2]}
     reasons = [r["reasoning"] for r in rec.rows]
     first_valid = next((r for r in rec.rows if r["valid"]), rec.rows[0])
     plans = list(expert.plans(obs.scene)) if obs.scene is not None else []
@@ -208,6 +217,37 @@ def run_dagger_episode(job: DaggerJob) -> tuple[DaggerJob, dict, Episode | None,
                                              "frame_steps": [r["step"] for r in rec.rows]},
               "reasoning": [[r["step"], t] for r, t in zip(rec.rows, reasons)], "first_label": first_valid["reasoning"]})
     return job, attempt, episode, rec.rows
+
+
+def teacher_recovers(world, snap, max_steps: int) -> dict:
+    """From a state the rollout reached, the clean expert alone until the goal holds or the step budget
+    ends: does the teacher have a good answer there, not only a label? (A dropped object, a drawer
+    left half open, an object pushed out of reach: its labels are then moves that lead nowhere.)"""
+    from seal.policies.expert.policy import ScriptedExpert
+
+    world.restore(snap)
+    expert = ScriptedExpert.for_world(world)
+    atoms = expert.privileged_atoms()
+    expert.reset(world.instruction, 0)
+    obs = world.observe(images=False, privileged_atoms=atoms)
+    reasoning = expert.reason(obs)
+    expert.begin(1)
+    now_at_start = reasoning.now
+    try:
+        while not world.success() and world.steps < max_steps and not reasoning.finished:
+            chunk = expert.act([obs], reasoning)[0]
+            if chunk.think:
+                reasoning = expert.reason(obs)
+                expert.begin(1)
+                continue
+            for action in chunk.actions[:ACTION_HORIZON]:
+                world.step(action)
+                obs = world.observe(images=False, privileged_atoms=atoms)
+                if world.success() or world.steps >= max_steps:
+                    break
+    except SealError as exc:
+        return {"recovered": False, "steps": world.steps, "now": now_at_start, "error": str(exc)}
+    return {"recovered": bool(world.success()), "steps": world.steps, "now": now_at_start}
 
 
 def on_policy_figures(rows: list[dict], final_done=()) -> dict:
@@ -248,6 +288,8 @@ class DaggerSummary:
     invalid_labels: int = 0
     think_labels: int = 0
     vla_done_early: int = 0
+    teacher_checks: int = 0  # rollouts where the expert was let to finish alone from one boundary
+    teacher_recovered: int = 0  # ...and reached the goal
     why: dict = field(default_factory=dict)  # invalid-label reason (its first words) -> count
 
 
@@ -278,7 +320,7 @@ def _attempted(root: Path, settings: dict) -> set[tuple[str, int, int]]:
 
 def collect_dagger(suite: str, out: Path, *, ckpt: str, episodes_per_task: int, round_: int = 1, beta: float = 0.0,
                    tasks: list[int] | None = None, workers: int = 1, render_mode: str | None = None,
-                   max_steps: int | None = None, progress=None) -> DaggerSummary:
+                   max_steps: int | None = None, teacher_check: bool = True, progress=None) -> DaggerSummary:
     """Roll out ``ckpt`` on fresh starts and label every chunk boundary with the expert (resumable)."""
     from seal.annotate.pipeline import ANNOTATIONS, INFO, LABELS_PATH, CHUNK_SIZE
     from seal.policies.vla.locate import checkpoint_digest, resolve_checkpoint, trained_render
@@ -325,7 +367,7 @@ def collect_dagger(suite: str, out: Path, *, ckpt: str, episodes_per_task: int, 
             todo = [e for e in range(episodes_per_task) if (suite, spec.task_id, e) not in attempted]
             summary.skipped += episodes_per_task - len(todo)
             jobs += [DaggerJob(suite, spec.task_id, e, round_, str(where), float(beta), render, config.image_size,
-                               max_steps) for e in todo]
+                               max_steps, teacher_check=teacher_check) for e in todo]
         jobs.sort(key=lambda j: (j.episode, tasks.index(j.task_id)))  # every task about equally, early on
         if progress:
             progress(summary, len(jobs) + summary.skipped, advance=summary.skipped)
@@ -343,6 +385,9 @@ def collect_dagger(suite: str, out: Path, *, ckpt: str, episodes_per_task: int, 
                         key = r["why"].split(":")[0][:60]
                         summary.why[key] = summary.why.get(key, 0) + 1
             summary.successes += attempt["success"]
+            if "teacher_check" in attempt:
+                summary.teacher_checks += 1
+                summary.teacher_recovered += attempt["teacher_check"]["recovered"]
             summary.vla_done_early += attempt["ended"] == "vla_done"
             with open(out / ATTEMPTS, "a") as f:  # after the episode and its labels: a crash between redoes it
                 f.write(json.dumps(attempt) + "\n")
@@ -359,8 +404,41 @@ def collect_dagger(suite: str, out: Path, *, ckpt: str, episodes_per_task: int, 
             with multiprocessing.get_context("spawn").Pool(workers, initializer=_quiet_worker) as pool:
                 for result in pool.imap_unordered(run_dagger_episode, jobs, chunksize=1):
                     finish(*result)
-    (out / "dagger_summary.json").write_text(json.dumps(asdict(summary) | {"settings": settings}, indent=2) + "\n")
+    (out / "dagger_summary.json").write_text(json.dumps(summarize(out) | {"settings": settings}, indent=2) + "\n")
     return summary
+
+
+def summarize(out: Path) -> dict:
+    """Figures over every episode a collection holds (all runs of it, not only the last)."""
+    import pyarrow.parquet as pq
+
+    from seal.annotate.pipeline import ANNOTATIONS
+
+    out = Path(out)
+    attempts = [json.loads(line) for line in (out / ATTEMPTS).read_text().splitlines() if line.strip()] \
+        if (out / ATTEMPTS).is_file() else []
+    frames = sum(a.get("frames", 0) for a in attempts)
+    checks = [a["teacher_check"] for a in attempts if "teacher_check" in a]
+    why: dict[str, int] = {}
+    think = 0
+    ann = out / ANNOTATIONS_DIR
+    for line in ((ann / ANNOTATIONS).read_text().splitlines() if (ann / ANNOTATIONS).is_file() else []):
+        table = pq.read_table(ann / json.loads(line)["labels_path"], columns=["think", "valid", "why"]).to_pydict()
+        think += sum(table["think"])
+        for valid, reason in zip(table["valid"], table["why"]):
+            if not valid:
+                key = reason.split(":")[0][:60]
+                why[key] = why.get(key, 0) + 1
+    n = max(len(attempts), 1)
+    return {"episodes": len(attempts), "success": round(sum(a["success"] for a in attempts) / n, 4),
+            "frames": frames, "think_labels": think, "invalid_labels": sum(why.values()), "why_invalid": why,
+            "vla_done_early": sum(a.get("ended") == "vla_done" for a in attempts),
+            "subplan_accuracy": round(sum((a.get("subplan_accuracy") or 0) * a.get("frames", 0) for a in attempts)
+                                      / max(frames, 1), 4),
+            "teacher_checks": len(checks), "teacher_recovered": sum(c["recovered"] for c in checks),
+            "teacher_unrecovered": [{"task": f"{a['suite']}/{a['task_id']}", "episode": a["init_index"],
+                                     **a["teacher_check"]} for a in attempts
+                                    if "teacher_check" in a and not a["teacher_check"]["recovered"]]}
 
 
 def _quiet_worker() -> None:
