@@ -430,11 +430,13 @@ def summarize(out: Path) -> dict:
                 key = reason.split(":")[0][:60]
                 why[key] = why.get(key, 0) + 1
     n = max(len(attempts), 1)
+    measured = [a for a in attempts if a.get("subplan_accuracy") is not None]
     return {"episodes": len(attempts), "success": round(sum(a["success"] for a in attempts) / n, 4),
             "frames": frames, "think_labels": think, "invalid_labels": sum(why.values()), "why_invalid": why,
             "vla_done_early": sum(a.get("ended") == "vla_done" for a in attempts),
-            "subplan_accuracy": round(sum((a.get("subplan_accuracy") or 0) * a.get("frames", 0) for a in attempts)
-                                      / max(frames, 1), 4),
+            # over the episodes that measured it (collections begun before the figure existed lack it)
+            "subplan_accuracy": round(sum(a["subplan_accuracy"] * a["frames"] for a in measured)
+                                      / max(sum(a["frames"] for a in measured), 1), 4) if measured else None,
             "teacher_checks": len(checks), "teacher_recovered": sum(c["recovered"] for c in checks),
             "teacher_unrecovered": [{"task": f"{a['suite']}/{a['task_id']}", "episode": a["init_index"],
                                      **a["teacher_check"]} for a in attempts
