@@ -38,6 +38,25 @@ def test_new_settings_enter_the_hash_only_when_set():
     assert MethodSpec(pick="first").config_hash == plain.config_hash
     assert MethodSpec(pick="best").label == "seal[pick=best]"
     assert MethodSpec(method="random", pick="best").config_hash == MethodSpec(method="random").config_hash
+    assert MethodSpec(verify_order="slot").config_hash == plain.config_hash
+    assert MethodSpec(verify_order="arrival").label == "seal[verify_order=arrival]"
+    assert MethodSpec(method="base", verify_order="arrival").config_hash == MethodSpec(method="base").config_hash
+
+
+def test_eval_takes_verdicts_in_slot_order_and_run_as_they_arrive():
+    """`seal eval`'s results must not depend on machine load; `seal run` shows the paper's overlap
+    of verification and sampling unless told otherwise."""
+    from seal.cli import build_parser
+
+    parse = build_parser().parse_args
+    assert parse(["eval", "--db", "r.db"]).verify_order is None  # not given: MethodSpec's default
+    (m,) = parse_methods("seal")
+    assert m.verify_order == "slot" and m.steer_config().verify_order == "slot"
+    assert parse(["run"]).verify_order == "arrival" and parse(["run", "--verify-order", "slot"]).verify_order == "slot"
+    (m,) = parse_methods("seal:verify_order=arrival")
+    assert m.steer_config().verify_order == "arrival"
+    with pytest.raises(InvalidInput, match="unknown verify_order 'random'; valid: slot, arrival"):
+        MethodSpec(verify_order="random")
 
 
 def test_parse_methods_takes_every_option():
@@ -121,27 +140,16 @@ def _rows(db: Path) -> list:
         return store.rows()
 
 
-def _decisions(trace: Path) -> list[tuple]:
-    """What the loop decided, without clock times or snapshot ids.
-
-    A losing candidate's verdict is left out: verification runs on a background thread, and
-    whether it was in or was cancelled when another candidate passed first depends on thread
-    timing (seen under load). The winner's verdict is in its commit event."""
-    out = []
-    for e in map(json.loads, trace.read_text().splitlines()):
-        verdict = (e.get("verdict") or {}) if e["event"] != "candidate" else {}
-        out.append((e["event"], e.get("slot"), e.get("round"), e.get("steps"), e.get("ended_by"), e.get("text"),
-                    verdict.get("success"), e.get("success")))
-    return out
-
-
 def test_run_and_eval_give_the_same_trial(tmp_path, capsys):
-    """`seal run` with a trial's init state and seed == that trial's `seal eval` row and trace."""
+    """`seal run` with a trial's init state and seed == that trial's `seal eval` row and trace (in slot
+    order, `seal eval`'s default, the trace is the same but for its clock readings)."""
+    from seal.steer.trace import read_trace, same_episode
+
     suite, task = BOOK
     seed = trial_seed(suite, task, 0)
     options = ["--k", "2", "--knobs", "misaligned", "--max-steps", str(SHORT)]
     assert main(["run", "--suite", suite, "--task", str(task), "--init", "0", "--seed", str(seed), "--method", "seal",
-                 "--out", str(tmp_path / "run"), "--no-video", "--no-grids", *options]) == 0
+                 "--out", str(tmp_path / "run"), "--no-video", "--no-grids", "--verify-order", "slot", *options]) == 0
     ran = json.loads((tmp_path / "run" / "summary.json").read_text())
     db = tmp_path / "r.db"
     assert main(["eval", "--suite", suite, "--tasks", str(task), "--trials", "1", "--methods", "seal", "--db", str(db),
@@ -151,8 +159,8 @@ def test_run_and_eval_give_the_same_trial(tmp_path, capsys):
     assert (row.success, row.steps, row.rounds, row.verifier_calls, row.fallbacks) == \
         (ran["success"], ran["steps"], ran["rounds"], ran["verifier_calls"], ran["fallbacks"])
     assert row.subplans == ran["subplans"] and row.goal_status == ran["goal_status"]
-    assert _decisions(Path(row.trace_path)) == _decisions(Path(ran["trace"]))
-    assert ran["steps"] > 0 and any(d[0] == "commit" for d in _decisions(Path(ran["trace"])))
+    assert same_episode(Path(row.trace_path), Path(ran["trace"]))
+    assert ran["steps"] > 0 and any(e["event"] == "commit" for e in read_trace(Path(ran["trace"])))
 
 
 def test_eval_with_a_physics_mismatch(tmp_path):

@@ -1,4 +1,5 @@
 import asyncio
+import random
 from dataclasses import replace
 
 import numpy as np
@@ -11,7 +12,7 @@ from seal.sim.suites import get_task
 from seal.sim.world import LiberoWorld, PhysicsMismatch
 from seal.steer.engine import Steerer, SteerConfig
 from seal.steer.run import expert_policy
-from seal.steer.trace import Trace, read_trace
+from seal.steer.trace import TIMING_FIELDS, Trace, read_trace, same_episode, without_timing
 from seal.verify.base import Verdict
 from seal.verify.oracle import OracleVerifier
 
@@ -97,7 +98,8 @@ def test_base_method_runs_one_unverified_candidate(pool, tmp_path):
 
 
 def test_background_verification_overlaps_sampling_and_exits_early(pool, tmp_path):
-    config = SteerConfig(method="seal", k=4, seed=1, max_steps=60)  # the pick sub-plan only
+    # the pick sub-plan only; in arrival order (slot order waits for each boundary's verdicts)
+    config = SteerConfig(method="seal", k=4, seed=1, max_steps=60, verify_order="arrival")
     result, trace = _steer(pool, config, SlowOracle(2.0), FailureKnobs.misaligned(), tmp_path)
     first_round = [e for e in trace if e["event"] == "candidate" and e["round"] == 0][:4]
     verified = [c for c in first_round if c["verdict"] is not None]
@@ -108,6 +110,99 @@ def test_background_verification_overlaps_sampling_and_exits_early(pool, tmp_pat
     # early exit: the round's verification wall time is well under K sequential calls
     span = max(c["t_verified"] for c in verified) - first["t_end"]
     assert span < 3 * 2.0
+
+
+class DelayedOracle(OracleVerifier):
+    """The oracle answering after a delay per call: a random one drawn from ``seed`` (verdicts then
+    come in in an order unrelated to the candidates'), plus ``hold`` seconds for the slots in ``held``."""
+
+    def __init__(self, seed: int | None = None, most: float = 0.3, held=(), hold: float = 1.0):
+        self.rng, self.most, self.held, self.hold = random.Random(seed), most if seed is not None else 0.0, held, hold
+
+    async def verify(self, request) -> Verdict:
+        delay = self.rng.uniform(0.0, self.most) + (self.hold if request.candidate in self.held else 0.0)
+        await asyncio.sleep(delay)
+        return await super().verify(request)
+
+
+def test_slot_order_gives_the_same_trace_whatever_order_verdicts_arrive_in(pool, tmp_path):
+    """verify_order="slot" (the default): an episode is a function of its seeds. Verdicts delayed at
+    random, or the winner's held back, leave the trace as it was but for its clock readings; in
+    arrival order the same hold hands the round to another candidate."""
+    config = SteerConfig(method="seal", k=4, seed=1, max_steps=60)  # the pick sub-plan, then part of the place
+    knobs = FailureKnobs.misaligned()
+    _, reference = _steer(pool, config, OracleVerifier(), knobs, tmp_path / "plain")
+    first = next(i for i, e in enumerate(reference) if e["event"] == "commit")
+    winner = reference[first]
+    together = [e["slot"] for e in reference[:first] if e["event"] == "candidate" and e["steps"] == winner["steps"]
+                and e["verdict"] and e["verdict"]["success"]]
+    # several candidates passed at the winner's chunk boundary: which verdict comes first is up to timing
+    assert len(together) >= 2 and winner["slot"] == min(together), (winner, together)
+    for name, verifier in (("shuffled", DelayedOracle(seed=7)), ("held", DelayedOracle(held={winner["slot"]}))):
+        _steer(pool, config, verifier, knobs, tmp_path / name)
+        assert same_episode(tmp_path / name / "trace.jsonl", tmp_path / "plain" / "trace.jsonl"), name
+    # what the helper dropped: clock readings only
+    plain = (tmp_path / "plain" / "trace.jsonl").read_text()
+    assert '"t_verified"' in plain and '"latency_s"' in plain
+    stripped = without_timing(reference)
+    assert all(not TIMING_FIELDS & {*e, *(e.get("verdict") or {})} for e in stripped)
+    assert [e["event"] for e in stripped] == [e["event"] for e in reference]
+
+    _, arrival = _steer(pool, replace(config, verify_order="arrival"), DelayedOracle(held={winner["slot"]}), knobs,
+                        tmp_path / "arrival")
+    commit = next(e for e in arrival if e["event"] == "commit")
+    assert commit["slot"] in together and commit["slot"] != winner["slot"]
+    assert without_timing(arrival) != without_timing(reference)
+
+
+class Batching:
+    """Judges the requests that arrive together in one batch, as the learned verifier does."""
+
+    name = "batching"
+    needs_images = False
+
+    def __init__(self):
+        self.batches, self._queue = [], []
+
+    def atoms_needed(self, request, objects):
+        return []
+
+    async def verify(self, request) -> Verdict:
+        future = asyncio.get_running_loop().create_future()
+        self._queue.append((request, future))
+        if len(self._queue) == 1:
+            asyncio.get_running_loop().call_soon(self._flush)
+        return await future
+
+    def _flush(self):
+        batch, self._queue = self._queue, []
+        self.batches.append([r.candidate for r, _ in batch])
+        for r, f in batch:
+            f.set_result(Verdict(True, f"batch of {len(batch)}", score=float(len(batch))))
+
+
+def test_a_boundary_is_judged_as_one_batch_whatever_the_timing():
+    """Slot order sends a chunk boundary's requests together: a batching verifier's batches (and so its
+    scores' last bits) do not depend on when the verifier thread runs. One at a time, they do."""
+    import time
+
+    from seal.steer.background import BackgroundVerifier
+    from seal.verify.base import VerifyRequest
+
+    requests = [VerifyRequest(subplan="pick up the book", instruction="", candidate=i) for i in range(4)]
+    verifier = Batching()
+    with BackgroundVerifier(verifier) as background:
+        for delay in (0.0, 0.01, 0.05):
+            futures = background.submit_together(requests)
+            time.sleep(delay)
+            assert [f.result(timeout=5).score for f in futures] == [4.0] * 4
+        assert verifier.batches == [[0, 1, 2, 3]] * 3
+        verifier.batches.clear()
+        for r in requests:  # arrival order: each request starts when it is submitted
+            background.submit(r)
+            time.sleep(0.05)
+        time.sleep(0.05)
+        assert len(verifier.batches) > 1
 
 
 def test_replay_mode_measures_model_mismatch(tmp_path):
@@ -134,6 +229,8 @@ def test_bad_steering_config():
         SteerConfig(value_goal="scene")
     with pytest.raises(InvalidInput, match="valid: sync, replay"):
         SteerConfig(mode="dream")
+    with pytest.raises(InvalidInput, match="valid: slot, arrival"):
+        SteerConfig(verify_order="random")
     with pytest.raises(InvalidInput, match="k >= 1"):
         SteerConfig(k=0)
     with pytest.raises(InvalidInput, match="in \\[0.1, 10\\]"):

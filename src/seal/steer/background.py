@@ -16,6 +16,10 @@ Failures are sorted here, so that none passes silently:
   such rounds were is ``mostly_unavailable``;
 - anything else a verifier raises is a bug: it propagates like a permanent error (in `seal eval`
   the trial becomes an error row with its traceback).
+
+`submit` starts a verification at once (arrival order); `submit_together` starts a group in one
+turn of the event loop, so a verifier that batches what arrives together (the learned one) judges
+the group as one batch whatever the threads' timing (slot order: one group per chunk boundary).
 """
 
 from __future__ import annotations
@@ -63,6 +67,20 @@ class BackgroundVerifier:
         """Start verifying now; the future resolves to a `Verdict` (a transient failure is an
         unknown verdict with ``extra["error"]``) or raises a permanent error."""
         return asyncio.run_coroutine_threadsafe(self._run(request, self._round), self._loop)
+
+    def submit_together(self, requests: list[VerifyRequest]) -> list[Future]:
+        """Start verifying ``requests`` in the same turn of the event loop: none starts before all
+        are submitted, so a batching verifier sees them as one batch (its make-up, and with it the
+        last bits of each probability, is then no matter of timing). Futures as `submit`'s."""
+        gate = asyncio.Event()
+
+        async def gated(request: VerifyRequest, round_: int) -> Verdict:
+            await gate.wait()
+            return await self._run(request, round_)
+
+        futures = [asyncio.run_coroutine_threadsafe(gated(r, self._round), self._loop) for r in requests]
+        self._loop.call_soon_threadsafe(gate.set)  # after every task above is scheduled (FIFO)
+        return futures
 
     async def _run(self, request: VerifyRequest, round_: int = 0) -> Verdict:
         start = time.perf_counter()

@@ -7,6 +7,9 @@ For each sub-plan the policy writes:
                policy emits <think> or the sub-plan's step budget is spent;
   VERIFY       a finished candidate goes to the verifier in the background while the others
                keep sampling; the first verdict of success ends the round (early exit);
+               ``verify_order="slot"`` (the default) takes the verdicts at each chunk boundary, in
+               candidate order, so "first" is decided by the seeds; ``"arrival"`` takes them as they
+               come in (thread timing can then decide which candidate is first);
   COMMIT       every slot is moved to the winner's end state (``sync`` mode), or the winner's
                actions are executed in a separate evaluation world (``replay`` mode) and every
                slot is moved to what really happened there.
@@ -44,7 +47,7 @@ from seal.sim.observation import Observation
 from seal.sim.snapshot import Snapshot
 from seal.steer.background import BackgroundVerifier
 from seal.steer.events import GridWriter, Subscriber
-from seal.steer.method import MODES, PICKS, VALUE_GOALS
+from seal.steer.method import MODES, PICKS, VALUE_GOALS, VERIFY_ORDERS
 from seal.steer.selection import METHODS, Candidate, Check, Subplan, selection_for
 from seal.steer.trace import Trace
 from seal.verify.base import Verdict, VerifyRequest
@@ -65,6 +68,9 @@ class SteerConfig:
     value_goal: str = "task"  # value method: what the scorer is conditioned on (V-GPS uses the task)
     check_every: int = 20  # policies that never think: steps between mid-rollout verifier checks
     pick: str = "first"  # seal: the first pass, or the best-scored pass of a whole round (MethodSpec.pick)
+    # seal: "slot" waits at each chunk boundary for the verdicts of the candidates that ended there and takes
+    # them candidate 0 first (a function of the seeds); "arrival" takes them as they come in (MethodSpec.verify_order)
+    verify_order: str = "slot"
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -75,6 +81,8 @@ class SteerConfig:
             raise InvalidInput(f"unknown mode {self.mode!r}; valid: {', '.join(MODES)}")
         if self.pick not in PICKS:
             raise InvalidInput(f"unknown pick {self.pick!r}; valid: {', '.join(PICKS)}")
+        if self.verify_order not in VERIFY_ORDERS:
+            raise InvalidInput(f"unknown verify_order {self.verify_order!r}; valid: {', '.join(VERIFY_ORDERS)}")
         if self.k < 1 or self.rounds < 1 or self.subplan_budget < ACTION_HORIZON or self.check_every < ACTION_HORIZON:
             raise InvalidInput(f"need k >= 1, rounds >= 1, subplan_budget >= {ACTION_HORIZON}, check_every >= "
                                f"{ACTION_HORIZON}; got k={self.k}, rounds={self.rounds}, "
@@ -146,6 +154,8 @@ class Steerer:
             self.subscribers.append(GridWriter(pool, grid_dir))
         self.subscribers += list(subscribers)
         self._subplan_index = 0
+        self._taken = 0  # verdicts taken so far: which candidate passed "first" is counted, never timed
+        self._boundary: list = []  # slot order: (request, candidate or check) to verify at this chunk boundary
         self.rng = np.random.default_rng(config.seed)
         self.atoms = policy.privileged_atoms()
         # What the policy looks at: nothing (the scripted expert reads state), openpi's 224-px
@@ -232,6 +242,7 @@ class Steerer:
         now = time.perf_counter()
         cands = [Candidate(round=r, slot=i, snapshot=sub.committed, t_start=now) for i in range(k)]
         sub.tried += cands
+        self._boundary = []
         obs = {i: sub.obs0 for i in range(k)}
         active = list(range(k))
         winner = None
@@ -269,11 +280,15 @@ class Steerer:
                         self._finish(c, "task_success", sub)
                         active.remove(res.slot)
                     elif self._check_midway and c.steps >= (len(c.checks) + 1) * cfg.check_every:
-                        c.checks.append(Check(sub.background.submit(self._request(c, sub)), c.snapshot,
-                                              len(c.actions), c.steps))
-                        result.verifier_calls += 1
+                        chk = Check(None, c.snapshot, len(c.actions), c.steps)
+                        c.checks.append(chk)
+                        self._verify(self._request(c, sub), chk, sub)
+            if self._in_slot_order:  # this boundary's requests, as one group (one batch for a batching verifier)
+                self._submit_boundary(sub.background)
             if self._check_midway:
-                self._take_checks(cands, active)
+                self._take_checks(cands, active, result)
+            if self._in_slot_order:  # this chunk boundary is settled before the next chunk is sampled
+                self._settle(cands, result)
             winner = self._first_pass(cands)
         if winner is None:
             winner = self._wait_for_verdicts(cands, result)
@@ -303,10 +318,25 @@ class Steerer:
             return
         if how == "task_success":  # LIBERO's own success check passed in this candidate's world
             c.verdict = Verdict(True, "the task's goal holds", score=1.0)
-            c.t_verified = c.t_end
+            c.t_verified, c.taken = c.t_end, self._next_taken()
             return
-        c.future = sub.background.submit(self._request(c, sub))
+        self._verify(self._request(c, sub), c, sub)
+
+    def _verify(self, request: VerifyRequest, owner: Candidate | Check, sub: Subplan) -> None:
+        """Send ``request`` to the verifier now (arrival order) or with the rest of this chunk
+        boundary (slot order); ``owner.future`` will hold its verdict."""
         sub.result.verifier_calls += 1
+        if self._in_slot_order:
+            self._boundary.append((request, owner))
+        else:
+            owner.future = sub.background.submit(request)
+
+    def _submit_boundary(self, background: BackgroundVerifier) -> None:
+        if self._boundary:
+            futures = background.submit_together([request for request, _ in self._boundary])
+            for (_, owner), future in zip(self._boundary, futures):
+                owner.future = future
+            self._boundary = []
 
     def _request(self, c: Candidate, sub: Subplan) -> VerifyRequest:
         """What the verifier judges: the sub-plan and the candidate's slot as it is now."""
@@ -322,21 +352,44 @@ class Steerer:
                   ended_by=c.ended_by or "midway")
         return request
 
-    def _take_checks(self, cands: list[Candidate], active: list[int]) -> None:
+    @property
+    def _in_slot_order(self) -> bool:
+        return self.selection.verifies and self.config.verify_order == "slot"
+
+    def _next_taken(self) -> int:
+        self._taken += 1
+        return self._taken
+
+    def _settle(self, cands: list[Candidate], result: SteerResult) -> None:
+        """Slot order: wait for every verdict still out (those of the candidates that ended at this
+        chunk boundary) and take them candidate 0 first."""
+        t0 = time.perf_counter()
+        for c in cands:
+            if c.future is not None and c.verdict is None:
+                self._take_verdict(c)
+        result.timing["verify_wait_s"] += time.perf_counter() - t0
+
+    def _take_checks(self, cands: list[Candidate], active: list[int], result: SteerResult) -> None:
         """A passed mid-rollout check ends its candidate at the checked point (the later chunks,
-        already run in its slot, are dropped: the commit syncs to the checked snapshot)."""
+        already run in its slot, are dropped: the commit syncs to the checked snapshot). In slot
+        order every check made at this boundary is waited for, candidate 0 first."""
+        wait = self._in_slot_order
+        t0 = time.perf_counter()
         for i in list(active):
             c = cands[i]
             for chk in c.checks:
-                if chk.verdict is None and chk.future.done():
+                if chk.verdict is None and (wait or chk.future.done()):
                     chk.verdict = chk.future.result()
                     self._account(chk.verdict)
                 if chk.verdict is not None and chk.verdict.passed:
                     c.actions, c.steps, c.snapshot = c.actions[: chk.chunks], chk.steps, chk.snapshot
                     c.verdict, c.ended_by = chk.verdict, "verified"
                     c.t_end = c.t_verified = time.perf_counter()
+                    c.taken = self._next_taken()
                     active.remove(i)
                     break
+        if wait:
+            result.timing["verify_wait_s"] += time.perf_counter() - t0
 
     def _first_pass(self, cands: list[Candidate]) -> Candidate | None:
         if self.selection.verifies:  # collect the verdicts that have come in meanwhile
@@ -359,6 +412,7 @@ class Steerer:
     def _take_verdict(self, c: Candidate) -> None:
         """Collect a finished verification; every call is paid for, winner or not."""
         c.verdict, c.t_verified = c.future.result(), time.perf_counter()
+        c.taken = self._next_taken()
         self._account(c.verdict)
 
     def _account(self, verdict: Verdict) -> None:

@@ -10,6 +10,7 @@ The loop (`seal.steer.engine.Steerer`) publishes what happens as ``(event, field
     round_end    subplan, round, candidates, reasoning      every candidate of a round has ended;
                                                             the pool's slots still hold their end states
     candidate    round, slot, steps, ended_by, error, snapshot, verdict, t_start, t_end, t_verified
+                 (the t_* fields and a verdict's latency_s are clock readings: `seal.steer.trace.TIMING_FIELDS`)
     commit       slot, round, steps, snapshot, ended_by, verdict
     episode_end  success, steps, sim_error, ended_by (goal_holds | policy_finished | step_limit | idle |
                  sim_error; with policy_finished also the reasoning that said so)

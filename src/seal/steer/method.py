@@ -28,6 +28,10 @@ KNOBS = ("clean", "misaligned")
 MODES = ("sync", "replay")
 VALUE_GOALS = ("task", "subplan")
 PICKS = ("first", "best")  # seal: the first candidate to pass, or the most confident pass of a whole round
+# seal: in which order verdicts are taken. "slot": at each chunk boundary the loop waits for the verdicts of
+# the candidates that ended there and takes them candidate 0 first (the trace is a function of the seeds);
+# "arrival": as they come in from the background verifier while sampling goes on (thread timing decides ties)
+VERIFY_ORDERS = ("slot", "arrival")
 RENDERS = ("stock", "fast")
 PLANNERS = ("", "annotations", "vlm")
 PROMPTS = ("task", "subplan")
@@ -35,7 +39,7 @@ TRANSPORTS = ("auto", "batched", "concurrent", "sequential")
 
 # Fields added after stores existed: in the canonical form only when not at their default.
 _LATER = ("mismatch", "check_every", "subplan_budget", "planner", "annotations", "planner_model", "prompt",
-          "policy_ckpt", "pick")
+          "policy_ckpt", "pick", "verify_order")
 _NO_HASH = {"hash": False}  # where a model runs, not what it is
 
 
@@ -69,6 +73,10 @@ class MethodSpec:
     # seal only: "first" commits the first candidate whose verdict passes (the paper's rule, early exit);
     # "best" waits for every verdict of the round and commits the pass with the highest score
     pick: str = "first"
+    # seal only: "slot" (default; `seal eval`'s) takes the verdicts at each chunk boundary in candidate order, so
+    # the same seeds give the same episode under any load; "arrival" (`seal run`'s default) takes them as they
+    # come in while sampling goes on, the paper's overlap of verification and sampling (see VERIFY_ORDERS)
+    verify_order: str = "slot"
     # -- connection details, never hashed --
     base_url: str | None = field(default=None, metadata=_NO_HASH)  # OpenAI-compatible VLM server
     host: str = field(default="127.0.0.1", metadata=_NO_HASH)  # remote policy server
@@ -98,6 +106,7 @@ class MethodSpec:
         _one_of("mode", self.mode, MODES)
         _one_of("value_goal", self.value_goal, VALUE_GOALS)
         _one_of("pick", self.pick, PICKS)
+        _one_of("verify_order", self.verify_order, VERIFY_ORDERS)
         if self.render is None:
             object.__setattr__(self, "render", self._policy_render() or "stock")
         _one_of("render", self.render, RENDERS)
@@ -149,7 +158,7 @@ class MethodSpec:
 
         return SteerConfig(method=self.method, k=self.k, rounds=self.rounds, subplan_budget=self.subplan_budget,
                            mode=self.mode, max_steps=max_steps, seed=seed, value_goal=self.value_goal,
-                           check_every=self.check_every, pick=self.pick)
+                           check_every=self.check_every, pick=self.pick, verify_order=self.verify_order)
 
     def physics(self):
         """The prediction worlds' `PhysicsMismatch`, or None for the true physics."""
@@ -185,7 +194,8 @@ class MethodSpec:
         if d.get("mismatch") is not None:
             d["mismatch"] = list(d["mismatch"])
         if self.method != "seal":
-            for name in ("verifier", "model", "false_positive", "false_negative", "rounds", "check_every", "pick"):
+            for name in ("verifier", "model", "false_positive", "false_negative", "rounds", "check_every", "pick",
+                         "verify_order"):
                 d.pop(name, None)
         elif self.verifier == "learned":  # the weights, not the path, decide the verdicts
             from seal.verify.learned import checkpoint_digest as learned_digest

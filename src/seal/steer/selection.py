@@ -9,6 +9,8 @@ sub-plan loop.
     base    K=1, nothing verified: the policy alone; its one candidate wins when it ends
     random  K candidates, one round; a random finished one
     seal    K candidates, verified in the background; the first that passes wins (early exit);
+            "first" is the first verdict the loop took: in slot order (the default) the verdicts
+            of each chunk boundary are taken candidate 0 first, in arrival order as they come in;
             no pass after ``rounds`` rounds -> the best verifier score, else the first.
             With pick="best", every candidate of the round runs and is judged, and the pass
             with the highest verifier score wins (no early exit: it spends the whole round
@@ -50,6 +52,8 @@ class Candidate:
     t_start: float = 0.0
     t_end: float = 0.0
     t_verified: float = 0.0
+    # when the loop took its verdict, counted (1, 2, ...; 0: none): "first to pass" compares this, not clocks
+    taken: int = 0
     checks: list = field(default_factory=list)  # mid-rollout checks of a policy that never thinks
 
 
@@ -57,7 +61,7 @@ class Candidate:
 class Check:
     """A verification of a candidate's state part-way through its rollout."""
 
-    future: Future
+    future: Future | None  # None until submitted (slot order submits at the chunk boundary)
     snapshot: Snapshot
     chunks: int  # executed chunks up to this point
     steps: int
@@ -157,11 +161,11 @@ class SealSelection(Selection):
     def early_winner(self, cands):
         passed = [c for c in cands if c.verdict is not None and c.verdict.passed]
         if self.pick == "first":
-            return min(passed, key=lambda c: c.t_verified) if passed else None
+            return min(passed, key=lambda c: c.taken) if passed else None
         settled = all(c.error is not None or c.verdict is not None for c in cands)
         if not settled or not passed:  # a candidate still running or being judged may score higher
             return None
-        return max(passed, key=lambda c: (1.0 if c.verdict.score is None else c.verdict.score, -c.t_verified))
+        return max(passed, key=lambda c: (1.0 if c.verdict.score is None else c.verdict.score, -c.taken))
 
     def fallback(self, usable, rng, result):
         result.fallbacks += 1

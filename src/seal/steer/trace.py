@@ -4,6 +4,12 @@ Events: ``subplan`` (reasoning at a sub-plan start), ``candidate`` (one per cand
 how it ended, its verdict with rationale, its end snapshot id, timestamps), ``commit`` (the
 winner), ``episode_end``. Timestamps are seconds since the trace was opened, so verification
 overlap and early exit can be read off directly.
+
+Clock readings sit in their own fields, `TIMING_FIELDS`: ``t`` (every event), ``t_start``,
+``t_end``, ``t_verified`` (candidates) and a verdict's ``latency_s``. Nothing else in a trace
+reads a clock, so with verdicts taken in slot order (``verify_order="slot"``, `seal eval`'s
+default) two runs of the same episode write the same trace once `without_timing` has dropped
+them (`same_episode` compares two trace files so).
 """
 
 from __future__ import annotations
@@ -14,6 +20,9 @@ import time
 from pathlib import Path
 
 EVENTS = ("subplan", "candidate", "commit", "episode_end")  # what a trace file holds
+# The fields that hold clock readings (seconds), at any depth of an event: all that may differ
+# between two runs of the same episode in slot order.
+TIMING_FIELDS = frozenset({"t", "t_start", "t_end", "t_verified", "latency_s"})
 
 
 class Trace:
@@ -60,6 +69,20 @@ def read_trace(path: Path, *, strict: bool = True) -> list[dict]:
             if strict:
                 raise
     return events
+
+
+def without_timing(obj):
+    """A trace's events (or one event, or any JSON value) without the `TIMING_FIELDS`."""
+    if isinstance(obj, dict):
+        return {k: without_timing(v) for k, v in obj.items() if k not in TIMING_FIELDS}
+    if isinstance(obj, list):
+        return [without_timing(v) for v in obj]
+    return obj
+
+
+def same_episode(a: Path, b: Path) -> bool:
+    """Two trace files that differ at most in their clock readings."""
+    return without_timing(read_trace(a)) == without_timing(read_trace(b))
 
 
 def _finite(obj):
