@@ -557,7 +557,7 @@ _METHOD_OPTIONS = (
     ("--annotations", str, "annotations planner: JSON file or LeRobot dataset dir (default: the task's decomposition)"),
     ("--planner-model", str, "vlm planner: model name (default gpt-4o)"),
     ("--prompt", str, "remote server without reasoning: prompt with the task (default) or the current sub-plan"),
-    ("--verify-order", str, "seal: slot (default; `seal eval`) waits at each chunk boundary for the verdicts of the "
+    ("--verify-order", str, "seal: slot (`seal eval`'s default) waits at each chunk boundary for the verdicts of the "
                             "candidates that ended there and takes them candidate 0 first: the same seeds give the same "
                             "trace under any load | arrival (`seal run`'s default): verdicts are taken as they come in "
                             "while sampling goes on, the paper's early exit, so thread timing can change the winner"),
