@@ -38,7 +38,7 @@ def labelled(tmp_path_factory):
     finally:
         dagger.teacher_label = original
     world = dagger._CACHE.pop("world")  # this module's now: a later collection's clean-up must not close it
-    dagger._close()
+    dagger.release_cached()
     yield attempt, episode, rows, snaps, world
     world.close()
 

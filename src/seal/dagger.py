@@ -272,7 +272,8 @@ def on_policy_figures(rows: list[dict], final_done=()) -> dict:
             "committed": spans}
 
 
-def _close() -> None:
+def release_cached() -> None:
+    """Close the world this process keeps between episodes and forget the loaded policy."""
     world = _CACHE.pop("world", None)
     if world is not None:
         world.close()
@@ -399,7 +400,7 @@ def collect_dagger(suite: str, out: Path, *, ckpt: str, episodes_per_task: int, 
                 for job in jobs:
                     finish(*run_dagger_episode(job))
             finally:
-                _close()
+                release_cached()
         else:
             with multiprocessing.get_context("spawn").Pool(workers, initializer=_quiet_worker) as pool:
                 for result in pool.imap_unordered(run_dagger_episode, jobs, chunksize=1):

@@ -288,7 +288,7 @@ def _labelled_rollouts(ckpt: str, ids: list[int], *, n: int, render: str, suite:
     """The reasoning VLA alone on the same fresh starts, with the scripted expert reading every state it
     reaches (`seal.dagger`, beta 0: the expert never acts): success, sub-goals, and how its reasoning held
     up on its own states (sub-plan accuracy against the expert, alignment of the sub-plans it acted on)."""
-    from seal.dagger import DaggerJob, _close, run_dagger_episode
+    from seal.dagger import DaggerJob, release_cached, run_dagger_episode
     from seal.demos import start_seed
     from seal.policies.vla.checkpoint import read_config
     from seal.policies.vla.locate import resolve_checkpoint
@@ -313,7 +313,7 @@ def _labelled_rollouts(ckpt: str, ids: list[int], *, n: int, render: str, suite:
                     progress(f"rollout {key} #{e}: success={a['success']} steps={a['steps']} ended={a['ended']} "
                              f"subplan_accuracy={a['subplan_accuracy']} alignment={a['alignment']}")
     finally:
-        _close()
+        release_cached()
     frames = sum(r["frames"] for r in rows)
     committed = sum(r["committed"] for r in rows)
     return {"rollout_success": round(float(np.mean([r["success"] for r in rows])), 3),
