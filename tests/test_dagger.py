@@ -131,3 +131,17 @@ def test_the_teacher_check_lets_the_expert_finish_alone_from_a_reached_state(lab
     _, _, rows, snaps, world = labelled
     result = dagger.teacher_recovers(world, snaps[-1], max_steps=400)
     assert result["recovered"] and result["now"] == rows[-1]["now"] and result["steps"] <= 400
+
+
+def test_round_log_keeps_one_row_per_round_and_draws_them(tmp_path):
+    from seal.benchmarks.vla import log_round
+
+    figures = {"ckpt": "x", "rollouts": [{}] * 20, "rollout_success": 0.1, "onpolicy_subplan_accuracy": 0.5,
+               "onpolicy_alignment": 0.3}
+    log = tmp_path / "rounds.jsonl"
+    log_round(log, "0", figures)
+    log_round(log, "1", figures | {"rollout_success": 0.2})
+    png = log_round(log, "1", figures | {"rollout_success": 0.35})  # measured again: replaces round 1
+    rows = [json.loads(line) for line in log.read_text().splitlines()]
+    assert [(r["round"], r["rollout_success"], r["episodes"]) for r in rows] == [("0", 0.1, 20), ("1", 0.35, 20)]
+    assert png == log.with_suffix(".png") and png.stat().st_size > 10_000

@@ -919,6 +919,10 @@ def _add_bench(sub) -> None:
     bench.add_argument("--record-reference", action="store_true",
                        help="vla with --ckpt: write this machine's reference rollout (an action digest) into the "
                             "checkpoint's manifest; without it the bench reports whether this machine reproduces it")
+    bench.add_argument("--round-log", default=None, metavar="ROUNDS.jsonl",
+                       help="vla --rollouts: append the held-out figures to this log as --round-name and redraw "
+                            "ROUNDS.png (success, on-policy sub-plan accuracy, alignment per DAgger round)")
+    bench.add_argument("--round-name", default=None, help="vla --round-log: the round's label (default: the checkpoint)")
     bench.add_argument("--rollouts", type=_INDEX, default=0,
                        help="vla with --ckpt: closed-loop episodes per task on fresh sampled starts (default 0: none)")
     bench.add_argument("--tasks", default="", help="comma-separated task ids (expert: all; steer: 0,1,7; runtime: 5; render: 0,3,9)")

@@ -240,6 +240,8 @@ def run(args) -> dict:
             print(f"seal: warning: {out['rollout_render_note']}", file=sys.stderr, flush=True)
         out |= rollouts(str(path), tasks=args.tasks, n=int(args.rollouts), render=render,
                         max_steps=getattr(args, "max_steps", None))
+        if getattr(args, "round_log", None):
+            out["round_plot"] = str(log_round(Path(args.round_log), args.round_name or str(path), out))
     return out
 
 
@@ -384,3 +386,20 @@ def check_reference(ckpt: str, *, record: bool = False) -> dict:
             "manifest_digest": shipped["digest"], "max_abs_action_diff": round(float(gap.max()) if n else 0.0, 6),
             # the first executed step whose action differs by more than 1e-3 (None: never): how soon it drifts
             "first_step_apart": int(apart[0]) if len(apart) else None}
+
+
+def log_round(log: Path, name: str, out: dict) -> Path:
+    """Append this bench's held-out rollout figures as round ``name`` to ``log`` (JSONL; a round of the
+    same name is replaced) and redraw the per-round plot beside it (``log`` with .png)."""
+    import json
+
+    from seal.report.plots import rounds_plot
+
+    row = {"round": name, "ckpt": out.get("ckpt"), "episodes": len(out["rollouts"]),
+           **{k: out.get(k) for k in ("rollout_success", "rollout_subgoals", "onpolicy_subplan_accuracy",
+                                      "onpolicy_alignment", "vla_done_early", "teacher_unanswered")}}
+    rows = [json.loads(line) for line in log.read_text().splitlines() if line.strip()] if log.is_file() else []
+    rows = [r for r in rows if r["round"] != name] + [row]
+    log.parent.mkdir(parents=True, exist_ok=True)
+    log.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    return rounds_plot(rows, log.with_suffix(".png"))

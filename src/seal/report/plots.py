@@ -137,3 +137,32 @@ def runtime_breakdown_plot(rows: list[dict], path, *, title: str = "") -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
     return path
+
+
+def rounds_plot(rows: list[dict], path, *, title: str = "On-policy rounds: the reasoning VLA on held-out fresh starts") -> Path:
+    """One line per held-out figure against the DAgger round (rows from `seal bench vla --round-log`):
+    closed-loop success with its Wilson 95% interval, on-policy sub-plan accuracy and alignment."""
+    from seal.report.stats import wilson
+
+    fig = Figure(figsize=(7.5, 4.2), dpi=110)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    xs = list(range(len(rows)))
+    success = [100 * r["rollout_success"] for r in rows]
+    cis = [wilson(round(r["rollout_success"] * r["episodes"]), r["episodes"]) for r in rows]
+    ax.errorbar(xs, success, yerr=[[s - 100 * lo for s, (lo, _) in zip(success, cis)],
+                                   [100 * hi - s for s, (_, hi) in zip(success, cis)]],
+                marker="o", capsize=4, label="success alone (Wilson 95%)")
+    for key, label, marker in (("onpolicy_subplan_accuracy", "on-policy sub-plan accuracy", "s"),
+                               ("onpolicy_alignment", "alignment (committed sub-plans achieved)", "^")):
+        ax.plot(xs, [100 * (r.get(key) or 0.0) for r in rows], marker=marker, label=label)
+    ax.set_xticks(xs, [str(r["round"]) for r in rows])
+    ax.set_xlabel("round")
+    ax.set_ylabel("%")
+    ax.set_ylim(0, 100)
+    ax.grid(alpha=0.3)
+    ax.set_title(title, fontsize=10)
+    ax.legend(loc="upper left", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path)
+    return Path(path)
