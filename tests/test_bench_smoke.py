@@ -117,8 +117,10 @@ def test_bench_eval(capsys):
 
 
 def test_bench_trials_below_one_is_refused(capsys):
-    assert main(["bench", "eval", "--trials", "0"]) == 2
-    assert "--trials must be >= 1, got 0" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_:  # refused while the command line is parsed, before any work
+        main(["bench", "eval", "--trials", "0"])
+    assert exit_.value.code == 2
+    assert "argument --trials: must be an integer >= 1, got 0" in capsys.readouterr().err
 
 
 def test_bench_serve(capsys):
