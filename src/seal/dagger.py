@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from seal.datasets import Episode, LeRobotWriter
+from seal.datasets.lerobot import read_jsonl
 from seal.errors import InvalidInput, SealError
 from seal.policies.base import ACTION_HORIZON, PREDICT_HORIZON, Reasoning
 from seal.sim.fast_assets import CACHE_VERSION as FAST_VERSION
@@ -294,29 +295,15 @@ class DaggerSummary:
     why: dict = field(default_factory=dict)  # invalid-label reason (its first words) -> count
 
 
-def _attempted(root: Path, settings: dict) -> set[tuple[str, int, int]]:
-    path = root / ATTEMPTS
-    if not path.is_file():
-        return set()
-    done = set()
-    for line in path.read_text().splitlines():
-        try:
-            rec = json.loads(line)
-        except json.JSONDecodeError:
-            continue  # a torn last line after a crash: that attempt simply runs again
-        done.add((rec["suite"], rec["task_id"], rec["init_index"]))
-    # an episode whose labels were committed before a crash cut off its attempt line is done too
+def _attempted(root: Path) -> set[tuple[str, int, int]]:
+    """(suite, task, episode) of every attempt made, and of every episode whose labels were committed
+    before a crash cut off its attempt line (a torn last line simply runs again)."""
     from seal.annotate.pipeline import ANNOTATIONS
 
-    for line in ((root / ANNOTATIONS_DIR / ANNOTATIONS).read_text().splitlines()
-                 if (root / ANNOTATIONS_DIR / ANNOTATIONS).is_file() else []):
-        try:
-            rec = json.loads(line)
-        except json.JSONDecodeError:
-            continue
-        if "start" in rec:
-            done.add(tuple(rec["start"]))
-    return done
+    attempts, _ = read_jsonl(root / ATTEMPTS)
+    labelled, _ = read_jsonl(root / ANNOTATIONS_DIR / ANNOTATIONS)
+    return ({(a["suite"], a["task_id"], a["init_index"]) for a in attempts}
+            | {tuple(r["start"]) for r in labelled if "start" in r})
 
 
 def collect_dagger(suite: str, out: Path, *, ckpt: str, episodes_per_task: int, round_: int = 1, beta: float = 0.0,
@@ -361,7 +348,7 @@ def collect_dagger(suite: str, out: Path, *, ckpt: str, episodes_per_task: int, 
         info_path.write_text(json.dumps({"format": 1, "source": str((out / DATASET_DIR).resolve()), "backend": BACKEND,
                                          "horizon": ACTION_HORIZON, "dagger": settings}, indent=2) + "\n")
     summary = DaggerSummary()
-    attempted = _attempted(out, settings)
+    attempted = _attempted(out)
     with LeRobotWriter(out / DATASET_DIR, fps=4, image_size=config.image_size) as writer:
         jobs = []
         for spec in specs:
@@ -416,15 +403,14 @@ def summarize(out: Path) -> dict:
     from seal.annotate.pipeline import ANNOTATIONS
 
     out = Path(out)
-    attempts = [json.loads(line) for line in (out / ATTEMPTS).read_text().splitlines() if line.strip()] \
-        if (out / ATTEMPTS).is_file() else []
+    attempts, _ = read_jsonl(out / ATTEMPTS)
     frames = sum(a.get("frames", 0) for a in attempts)
     checks = [a["teacher_check"] for a in attempts if "teacher_check" in a]
     why: dict[str, int] = {}
     think = 0
     ann = out / ANNOTATIONS_DIR
-    for line in ((ann / ANNOTATIONS).read_text().splitlines() if (ann / ANNOTATIONS).is_file() else []):
-        table = pq.read_table(ann / json.loads(line)["labels_path"], columns=["think", "valid", "why"]).to_pydict()
+    for record in read_jsonl(ann / ANNOTATIONS)[0]:
+        table = pq.read_table(ann / record["labels_path"], columns=["think", "valid", "why"]).to_pydict()
         think += sum(table["think"])
         for valid, reason in zip(table["valid"], table["why"]):
             if not valid:
