@@ -129,8 +129,8 @@ def test_the_teacher_check_lets_the_expert_finish_alone_from_a_reached_state(lab
     """From the last labelled state of the tiny rollout (the book not yet in the caddy), the clean
     expert alone solves the task: the teacher had a good answer there, not only a label."""
     _, _, rows, snaps, world = labelled
-    result = dagger.teacher_recovers(world, snaps[-1], max_steps=400)
-    assert result["recovered"] and result["now"] == rows[-1]["now"] and result["steps"] <= 400
+    result = dagger.teacher_recovers(world, snaps[-1], budget=400)
+    assert result["recovered"] and result["now"] == rows[-1]["now"] and result["steps"] <= 25 + 400
 
 
 def test_round_log_keeps_one_row_per_round_and_draws_them(tmp_path):

@@ -200,6 +200,7 @@ def run_dagger_episode(job: DaggerJob) -> tuple[DaggerJob, dict, Episode | None,
     final_done = () if sim_error else expert.reason(obs).done  # what holds where the episode stopped
     attempt |= on_policy_figures(rec.rows, final_done)
     if check is not None:
+        # a whole task's budget from there: is the state recoverable at all, not "in what the episode had left"
         attempt["teacher_check"] = teacher_recovers(world, check[0], max_steps) | {"from_step": check[1],
                                                                                   "frame": check[2]}
     reasons = [r["reasoning"] for r in rec.rows]
@@ -220,10 +221,10 @@ def run_dagger_episode(job: DaggerJob) -> tuple[DaggerJob, dict, Episode | None,
     return job, attempt, episode, rec.rows
 
 
-def teacher_recovers(world, snap, max_steps: int) -> dict:
-    """From a state the rollout reached, the clean expert alone until the goal holds or the step budget
-    ends: does the teacher have a good answer there, not only a label? (A dropped object, a drawer
-    left half open, an object pushed out of reach: its labels are then moves that lead nowhere.)"""
+def teacher_recovers(world, snap, budget: int) -> dict:
+    """From a state the rollout reached, the clean expert alone until the goal holds or ``budget``
+    more steps are spent: does the teacher have a good answer there, not only a label? (A dropped
+    object, a drawer left half open, an object pushed out of reach: its labels then lead nowhere.)"""
     from seal.policies.expert.policy import ScriptedExpert
 
     world.restore(snap)
@@ -234,8 +235,9 @@ def teacher_recovers(world, snap, max_steps: int) -> dict:
     reasoning = expert.reason(obs)
     expert.begin(1)
     now_at_start = reasoning.now
+    end = world.steps + budget
     try:
-        while not world.success() and world.steps < max_steps and not reasoning.finished:
+        while not world.success() and world.steps < end and not reasoning.finished:
             chunk = expert.act([obs], reasoning)[0]
             if chunk.think:
                 reasoning = expert.reason(obs)
@@ -244,11 +246,11 @@ def teacher_recovers(world, snap, max_steps: int) -> dict:
             for action in chunk.actions[:ACTION_HORIZON]:
                 world.step(action)
                 obs = world.observe(images=False, privileged_atoms=atoms)
-                if world.success() or world.steps >= max_steps:
+                if world.success() or world.steps >= end:
                     break
     except SealError as exc:
-        return {"recovered": False, "steps": world.steps, "now": now_at_start, "error": str(exc)}
-    return {"recovered": bool(world.success()), "steps": world.steps, "now": now_at_start}
+        return {"recovered": False, "steps": world.steps, "now": now_at_start, "budget": budget, "error": str(exc)}
+    return {"recovered": bool(world.success()), "steps": world.steps, "now": now_at_start, "budget": budget}
 
 
 def on_policy_figures(rows: list[dict], final_done=()) -> dict:
@@ -405,7 +407,8 @@ def summarize(out: Path) -> dict:
     out = Path(out)
     attempts, _ = read_jsonl(out / ATTEMPTS)
     frames = sum(a.get("frames", 0) for a in attempts)
-    checks = [a["teacher_check"] for a in attempts if "teacher_check" in a]
+    # checks with a whole budget of their own (the first ones of round 1 had only what the episode had left)
+    checks = [a["teacher_check"] for a in attempts if "budget" in a.get("teacher_check", {})]
     why: dict[str, int] = {}
     think = 0
     ann = out / ANNOTATIONS_DIR
@@ -427,7 +430,7 @@ def summarize(out: Path) -> dict:
             "teacher_checks": len(checks), "teacher_recovered": sum(c["recovered"] for c in checks),
             "teacher_unrecovered": [{"task": f"{a['suite']}/{a['task_id']}", "episode": a["init_index"],
                                      **a["teacher_check"]} for a in attempts
-                                    if "teacher_check" in a and not a["teacher_check"]["recovered"]]}
+                                    if "budget" in a.get("teacher_check", {}) and not a["teacher_check"]["recovered"]]}
 
 
 def _quiet_worker() -> None:
