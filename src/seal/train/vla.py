@@ -183,25 +183,32 @@ class Labels:
     usable: np.ndarray | None = None  # (N,) bool; None: every frame
 
 
+class _Texts:
+    """Distinct reasoning texts and instructions, numbered in the order they first appear."""
+
+    def __init__(self):
+        self.ids: dict[str, int] = {}
+        self.nows: list[str] = []  # per text: its "Now I need to do" field
+        self.instructions: dict[str, int] = {}
+
+    def text(self, text: str, now: str) -> int:
+        if text not in self.ids:
+            self.ids[text] = len(self.ids)
+            self.nows.append(now)
+        return self.ids[text]
+
+    def instruction(self, text: str) -> int:
+        return self.instructions.setdefault(text, len(self.instructions))
+
+    def labels(self, reason, instruction, think_frames, think_reason, **extra) -> Labels:
+        return Labels(list(self.ids), list(self.instructions), reason, instruction, self.nows,
+                      np.asarray(think_frames, np.int64), np.asarray(think_reason, np.int64), **extra)
+
+
 def make_labels(cache: FrameCache, records: dict[int, dict], root: Path | None = None) -> Labels:
     """Per-frame labels of the cached episodes: from plans + critical moments (demonstrations), or
     read per frame from ``root``'s label files (DAgger episodes, ``frame_labels`` records)."""
     from seal.annotate.align import label_at
-
-    texts: dict[str, int] = {}
-    nows: list[str] = []
-    instructions: dict[str, int] = {}
-    n = len(cache.states)
-    reason = np.zeros(n, np.int64)
-    instruction = np.zeros(n, np.int64)
-    think_frames, think_reason = [], []
-
-    def text_id(r) -> int:
-        t = r.text()
-        if t not in texts:
-            texts[t] = len(texts)
-            nows.append(r.now)
-        return texts[t]
 
     per_frame = {bool(records[e].get("frame_labels")) for e in cache.episodes}
     if len(per_frame) > 1:
@@ -209,11 +216,20 @@ def make_labels(cache: FrameCache, records: dict[int, dict], root: Path | None =
                            "--annotations sources")
     if per_frame == {True}:
         return _frame_labels(cache, records, root)
+    texts = _Texts()
+    n = len(cache.states)
+    reason = np.zeros(n, np.int64)
+    instruction = np.zeros(n, np.int64)
+    think_frames, think_reason = [], []
+
+    def text_id(r) -> int:
+        return texts.text(r.text(), r.now)
+
     for e, start, length in zip(cache.episodes, cache.starts, cache.lengths):
         record = records[e]
         plans = list(record["plans"])
         critical = [int(m["dataset_frame"]) for m in record["critical_moments"]]
-        instruction[start:start + length] = instructions.setdefault(record["instruction"], len(instructions))
+        instruction[start:start + length] = texts.instruction(record["instruction"])
         for t in range(length):
             reason[start + t] = text_id(label_at(plans, critical, t))
         for c in critical:
@@ -223,8 +239,7 @@ def make_labels(cache: FrameCache, records: dict[int, dict], root: Path | None =
                     if reason[start + t] != stale:
                         think_frames.append(start + t)
                         think_reason.append(stale)
-    return Labels(list(texts), list(instructions), reason, instruction, nows, np.asarray(think_frames, np.int64),
-                  np.asarray(think_reason, np.int64))
+    return texts.labels(reason, instruction, think_frames, think_reason)
 
 
 def _frame_labels(cache: FrameCache, records: dict[int, dict], root: Path | None) -> Labels:
@@ -235,9 +250,7 @@ def _frame_labels(cache: FrameCache, records: dict[int, dict], root: Path | None
 
     if root is None:
         raise InvalidInput("DAgger labels need the annotation directory they live in")
-    texts: dict[str, int] = {}
-    nows: list[str] = []
-    instructions: dict[str, int] = {}
+    texts = _Texts()
     n = len(cache.states)
     reason = np.zeros(n, np.int64)
     instruction = np.zeros(n, np.int64)
@@ -246,16 +259,13 @@ def _frame_labels(cache: FrameCache, records: dict[int, dict], root: Path | None
     think_frames, think_reason = [], []
 
     def text_id(t: str) -> int:
-        if t not in texts:
-            texts[t] = len(texts)
-            nows.append(parse_reasoning(t).now)
-        return texts[t]
+        return texts.text(t, parse_reasoning(t).now)
 
     for e, start, length in zip(cache.episodes, cache.starts, cache.lengths):
         lab = read_frame_labels(root, records[e])
         if len(lab["reasoning"]) != length:
             raise InvalidInput(f"{root}: episode {e} has {len(lab['reasoning'])} labels for {length} frames")
-        instruction[start:start + length] = instructions.setdefault(records[e]["instruction"], len(instructions))
+        instruction[start:start + length] = texts.instruction(records[e]["instruction"])
         for t in range(length):
             reason[start + t] = text_id(lab["reasoning"][t])
             if lab["think"][t]:
@@ -263,8 +273,7 @@ def _frame_labels(cache: FrameCache, records: dict[int, dict], root: Path | None
                 think_reason.append(text_id(lab["vla_reasoning"][t]))
         chunks[start:start + length] = lab["chunks"]
         usable[start:start + length] = lab["valid"]
-    return Labels(list(texts), list(instructions), reason, instruction, nows, np.asarray(think_frames, np.int64),
-                  np.asarray(think_reason, np.int64), chunks=chunks, usable=usable)
+    return texts.labels(reason, instruction, think_frames, think_reason, chunks=chunks, usable=usable)
 
 
 class Batcher:
