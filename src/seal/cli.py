@@ -688,7 +688,8 @@ def _add_train(sub) -> None:
     vla.add_argument("--device", default=None, help="cpu (default) | cuda")
     vla.add_argument("--cache", default=None, help="frame cache directory (default RUN/cache; reusable across runs)")
     vla.add_argument("--bf16", action=argparse.BooleanOptionalAction, default=None,
-                     help="bf16 autocast (default on; docs/performance.md)")
+                     help="bf16 autocast (default: on where the hardware has bf16 units, a GPU or a CPU with "
+                          "avx512_bf16/AMX; emulated bf16 was ~5x slower here, docs/decisions.md)")
     vla.add_argument("--save-minutes", type=_POSITIVE, default=None, help="checkpoint interval (default 10)")
     vla.add_argument("--eval-every", type=_COUNT, default=None, help="held-out evaluation interval in steps (500)")
     vla.add_argument("--model-config", default=None, help="JSON file of VLAConfig fields to override")

@@ -122,7 +122,7 @@ def run(args) -> dict:
     from seal.policies.vla.policy import VLAPolicy
     from seal.policies.vla.tokenizer import project_texts, train_tokenizer
     from seal.sim.observation import Observation
-    from seal.train.vla import TrainConfig, heldout_eval
+    from seal.train.vla import TrainConfig, heldout_eval, native_bf16
 
     torch.set_num_threads(1)
     reps = getattr(args, "trials", None) or 5
@@ -202,7 +202,9 @@ def run(args) -> dict:
     out["k10_over_k1_bf16"] = round(out["sample_ms_k10_bf16"] / out["sample_ms_k1_bf16"], 3)
 
     tcfg = TrainConfig()
-    step_s = train_step_s(cfg, batch=tcfg.batch_size, bf16=tcfg.bf16, threads=tcfg.threads, reps=max(2, reps // 2))
+    bf16 = native_bf16(tcfg.device) if tcfg.bf16 is None else tcfg.bf16  # what `seal train vla` would use here
+    out["train_bf16"] = bf16
+    step_s = train_step_s(cfg, batch=tcfg.batch_size, bf16=bf16, threads=tcfg.threads, reps=max(2, reps // 2))
     torch.set_num_threads(1)
     out["train_step_ms"] = round(1000 * step_s, 1)
     out["train_samples_per_s"] = round(tcfg.batch_size / step_s, 2)

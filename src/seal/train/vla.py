@@ -81,7 +81,9 @@ class TrainConfig:
     # share of ordinary samples whose instruction is left out (reasoning model only): the action expert
     # must then read the task from the sub-plan text, so its actions follow the reasoning, not the prompt
     instruction_dropout: float = 0.0
-    bf16: bool = True  # bf16 autocast (CPU: needs avx512_bf16 or AMX to pay off; measure)
+    # bf16 autocast; None: on where it pays (a GPU, or a CPU with native bf16 units: `native_bf16`). On a
+    # CPU without them (AVX-512 but no avx512_bf16/AMX) it is emulated: ~5x slower per step, measured
+    bf16: bool | None = None
     threads: int = 1  # torch intra-op threads (on a shared 2-core machine, 1 was fastest)
     device: str = "cpu"
     save_minutes: float = 10.0
@@ -451,6 +453,18 @@ def recorded_render(metas: list[dict]) -> dict:
     return {"mode": mode, "fast_version": version}
 
 
+def native_bf16(device: str = "cpu") -> bool:
+    """Whether bf16 autocast runs on real bf16 units: any CUDA device, or a CPU whose flags list
+    avx512_bf16 or amx_bf16 (Linux's /proc/cpuinfo; elsewhere: no)."""
+    if device != "cpu":
+        return True
+    try:
+        flags = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return False
+    return "avx512_bf16" in flags or "amx_bf16" in flags
+
+
 @dataclass
 class Source:
     """One annotated dataset of the training mixture, cached and labelled."""
@@ -504,6 +518,8 @@ def train_vla(dataset: Path | None, annotations: Path | list[Path], out: Path, c
     out = Path(out)
     say = progress or (lambda *a, **k: None)
     torch.set_num_threads(cfg.threads)
+    if cfg.bf16 is None:  # resolved before anything is saved or compared: a resume on this machine agrees
+        cfg = replace(cfg, bf16=native_bf16(cfg.device))
     annotations = [Path(annotations)] if isinstance(annotations, (str, Path)) else [Path(a) for a in annotations]
     if not annotations:
         raise InvalidInput("seal train vla needs at least one --annotations directory")
