@@ -183,6 +183,9 @@ class Labels:
     # had an answer there at all (frames without one give no action or text sample, only think ones)
     chunks: np.ndarray | None = None  # (N, PREDICT_HORIZON, 7)
     usable: np.ndarray | None = None  # (N,) bool; None: every frame
+    # per text: whether it is ever a target (the policy's own stale texts only condition think samples,
+    # whose text loss is masked, so one too long for the reasoning segment is cut, not refused)
+    target: np.ndarray | None = None
 
 
 class _Texts:
@@ -203,8 +206,10 @@ class _Texts:
         return self.instructions.setdefault(text, len(self.instructions))
 
     def labels(self, reason, instruction, think_frames, think_reason, **extra) -> Labels:
+        target = np.zeros(len(self.ids), bool)
+        target[np.unique(reason)] = True
         return Labels(list(self.ids), list(self.instructions), reason, instruction, self.nows,
-                      np.asarray(think_frames, np.int64), np.asarray(think_reason, np.int64), **extra)
+                      np.asarray(think_frames, np.int64), np.asarray(think_reason, np.int64), target=target, **extra)
 
 
 def make_labels(cache: FrameCache, records: dict[int, dict], root: Path | None = None) -> Labels:
@@ -288,7 +293,8 @@ class Batcher:
         self.instr_ids = np.stack([i for i, _ in ins])
         self.instr_valid = np.stack([v for _, v in ins])
         if cfg.reasoning:
-            rs = [reasoning_ids(tok, t, cfg.max_reasoning_tokens, strict=True) for t in labels.texts]
+            strict = np.ones(len(labels.texts), bool) if labels.target is None else labels.target
+            rs = [reasoning_ids(tok, t, cfg.max_reasoning_tokens, strict=bool(s)) for t, s in zip(labels.texts, strict)]
             self.reason_ids = np.stack([r[0] for r in rs])
             self.reason_valid = np.stack([r[1] for r in rs])
             self.act_index = np.asarray([r[2] for r in rs], np.int64)
