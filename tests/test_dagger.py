@@ -82,6 +82,10 @@ def test_a_round_resumes_without_recording_anything_twice_and_trains_beside_demo
     assert table.num_rows == 6 and table.column("chunk").type.list_size == 16 * 7
     assert main(argv[:-2] + ["--beta", "0.2", "--out", str(out)]) == 2  # other settings: refused, nothing lost
     assert "other settings" in capsys.readouterr().err
+    assert main(["demos", "dagger-report", str(out)]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["episodes"] == 1 and report["frames"] == 6 and report["teacher_checks"] == 1
+    assert report["teacher_recovered"] + len(report["teacher_unrecovered"]) == 1
 
     # trains on it beside demonstrations (224-px synthetic ones; the cache resizes them), fine-tuning the shipped VLA
     from _annotate_data import make_v21

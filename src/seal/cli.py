@@ -109,6 +109,19 @@ def _cmd_dagger(args) -> int:
     return 0
 
 
+def _cmd_dagger_report(args) -> int:
+    from seal.dagger import ATTEMPTS, summarize, unrecovered_sheet
+
+    if not (Path(args.dir) / ATTEMPTS).is_file():
+        raise InvalidInput(f"{args.dir} holds no DAgger collection (no {ATTEMPTS}); give a `seal demos dagger --out` directory")
+    out = summarize(Path(args.dir))
+    if args.sheet:
+        sheet = unrecovered_sheet(Path(args.dir), Path(args.sheet))
+        out["sheet"] = str(sheet) if sheet else None
+    print(json.dumps(out))
+    return 0
+
+
 @contextlib.contextmanager
 def _stage_bars(names: dict[str, str], info):
     """A progress display for a training command: one bar per stage (``names``: stage -> label;
@@ -649,6 +662,11 @@ def _add_demos(sub) -> None:
     dag.add_argument("--workers", type=_COUNT, default=1, help="episodes in parallel (one simulator each)")
     dag.add_argument("--out", required=True)
     dag.set_defaults(func=_cmd_dagger)
+    rep = demos_sub.add_parser("dagger-report", help="figures of a DAgger collection (all its episodes so far) and "
+                                                     "a contact sheet of the states the expert could not finish from")
+    rep.add_argument("dir", help="a `seal demos dagger` output directory")
+    rep.add_argument("--sheet", default=None, metavar="PNG", help="write the contact sheet here")
+    rep.set_defaults(func=_cmd_dagger_report)
 
 
 def _add_train(sub) -> None:

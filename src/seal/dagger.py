@@ -484,3 +484,37 @@ def read_frame_labels(ann: Path, record: dict) -> dict[str, np.ndarray | list]:
     chunks = np.asarray(table["chunk"], np.float32).reshape(-1, PREDICT_HORIZON, 7)
     return {"reasoning": table["reasoning"], "vla_reasoning": table["vla_reasoning"], "now": table["now"],
             "think": np.asarray(table["think"], bool), "valid": np.asarray(table["valid"], bool), "chunks": chunks}
+
+
+def unrecovered_sheet(out: Path, png: Path, limit: int = 12) -> Path | None:
+    """A contact sheet of the states the teacher could not finish from (agent and wrist view as the
+    VLA saw them, the task, the step and the sub-plan in force): what the expert cannot handle."""
+    from PIL import Image, ImageDraw
+
+    from seal.annotate.pipeline import ANNOTATIONS
+    from seal.datasets import open_dataset
+    from seal.datasets.lerobot import AGENT_VIDEO_KEY, WRIST_VIDEO_KEY
+
+    out = Path(out)
+    records, _ = read_jsonl(out / ANNOTATIONS_DIR / ANNOTATIONS)
+    episode_of = {tuple(r["start"]): r["episode_index"] for r in records if "start" in r}
+    reader = open_dataset(out / DATASET_DIR)
+    tiles = []
+    for u in summarize(out)["teacher_unrecovered"][:limit]:
+        suite, task = u["task"].split("/")
+        e = episode_of.get((suite, int(task), u["episode"]))
+        if e is None:
+            continue
+        views = [reader.video(e, key)[u["frame"]] for key in (AGENT_VIDEO_KEY, WRIST_VIDEO_KEY)]
+        image = Image.fromarray(np.concatenate(views, axis=1)).resize((512, 256), Image.NEAREST)
+        tile = Image.new("RGB", (512, 280), "white")
+        tile.paste(image, (0, 24))
+        ImageDraw.Draw(tile).text((4, 4), f"{u['task']} #{u['episode']}, step {u['from_step']}: {u['now']}", fill="black")
+        tiles.append(tile)
+    if not tiles:
+        return None
+    sheet = Image.new("RGB", (1024, 280 * ((len(tiles) + 1) // 2)), "white")
+    for i, tile in enumerate(tiles):
+        sheet.paste(tile, ((i % 2) * 512, (i // 2) * 280))
+    sheet.save(png)
+    return Path(png)
