@@ -149,3 +149,21 @@ def test_round_log_keeps_one_row_per_round_and_draws_them(tmp_path):
     rows = [json.loads(line) for line in log.read_text().splitlines()]
     assert [(r["round"], r["rollout_success"], r["episodes"]) for r in rows] == [("0", 0.1, 20), ("1", 0.35, 20)]
     assert png == log.with_suffix(".png") and png.stat().st_size > 10_000
+
+
+@pytest.mark.parametrize("runner", ["seal.demos:_run_parallel", "seal.dagger:collect_dagger"])
+def test_recording_workers_leave_ctrl_c_to_the_parent(runner):
+    """Both recorders start their spawned workers with SIGINT ignored (the parent stops the pool), so
+    an interrupt prints one line, not a traceback per worker."""
+    import importlib
+    import inspect
+
+    module, name = runner.split(":")
+    assert "initializer=ignore_interrupts" in inspect.getsource(getattr(importlib.import_module(module), name))
+    import multiprocessing
+    import signal
+
+    from seal.sim.pool import ignore_interrupts
+
+    with multiprocessing.get_context("spawn").Pool(1, initializer=ignore_interrupts) as pool:
+        assert pool.apply(signal.getsignal, (signal.SIGINT,)) == signal.SIG_IGN

@@ -391,7 +391,9 @@ def collect_dagger(suite: str, out: Path, *, ckpt: str, episodes_per_task: int, 
             finally:
                 release_cached()
         else:
-            with multiprocessing.get_context("spawn").Pool(workers, initializer=_quiet_worker) as pool:
+            from seal.sim.pool import ignore_interrupts
+
+            with multiprocessing.get_context("spawn").Pool(workers, initializer=ignore_interrupts) as pool:
                 for result in pool.imap_unordered(run_dagger_episode, jobs, chunksize=1):
                     finish(*result)
     (out / "dagger_summary.json").write_text(json.dumps(summarize(out) | {"settings": settings}, indent=2) + "\n")
@@ -432,11 +434,6 @@ def summarize(out: Path) -> dict:
                                      **a["teacher_check"]} for a in attempts
                                     if "budget" in a.get("teacher_check", {}) and not a["teacher_check"]["recovered"]]}
 
-
-def _quiet_worker() -> None:
-    import signal
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops the pool
 
 
 def _write_labels(ann: Path, index: int, episode: Episode, rows: list[dict], labels_path: str, chunk_size: int,

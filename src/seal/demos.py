@@ -196,6 +196,8 @@ def _run_parallel(jobs: list[_Job], workers: int, finish) -> None:
     # world between jobs, and jobs go out in order (one at a time), so worlds are rarely rebuilt.
     # Leaving the ``with`` block terminates the workers, also on Ctrl-C or SIGTERM: episodes in
     # flight are dropped, everything finished is already written.
-    with multiprocessing.get_context("spawn").Pool(workers) as pool:
+    from seal.sim.pool import ignore_interrupts
+
+    with multiprocessing.get_context("spawn").Pool(workers, initializer=ignore_interrupts) as pool:
         for result in pool.imap_unordered(_run_job, jobs, chunksize=1):
             finish(*result)

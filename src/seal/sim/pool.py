@@ -50,10 +50,14 @@ class SlotResult:
 
 
 # ---- worker side ----------------------------------------------------------------------------
-def _worker_main(conn: Connection, task: TaskSpec, render_mode: str, physics=None) -> None:
-    # Ctrl-C reaches every process of the terminal's group: the parent handles it (and closes the
-    # pool); a worker stopped mid-step would only print a traceback.
+def ignore_interrupts() -> None:
+    """For a worker process: Ctrl-C reaches every process of the terminal's group, and the parent
+    handles it (it closes its workers); a worker stopped mid-step would only print a traceback."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _worker_main(conn: Connection, task: TaskSpec, render_mode: str, physics=None) -> None:
+    ignore_interrupts()
     from seal.sim.world import LiberoWorld
 
     world = LiberoWorld(task, render_mode=render_mode, physics=physics)
