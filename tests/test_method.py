@@ -151,6 +151,7 @@ def test_run_and_eval_give_the_same_trial(tmp_path, capsys):
     assert main(["run", "--suite", suite, "--task", str(task), "--init", "0", "--seed", str(seed), "--method", "seal",
                  "--out", str(tmp_path / "run"), "--no-video", "--no-grids", "--verify-order", "slot", *options]) == 0
     ran = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert ran["verify_order"] == "slot" and ran["method"]["method"] == "seal" and len(ran["config_hash"]) == 10
     db = tmp_path / "r.db"
     assert main(["eval", "--suite", suite, "--tasks", str(task), "--trials", "1", "--methods", "seal", "--db", str(db),
                  "--out", str(tmp_path / "eval"), "--video", "none", "--no-grids", *options]) == 0

@@ -34,5 +34,8 @@ def run_steered(spec: MethodSpec, suite: str, task_id: int, init_index: int, out
         if video and result.executed_actions:
             episode.replay_video(result, out_dir / "episode.mp4", every=2)
     summary = {k: v for k, v in asdict(result).items() if k != "executed_actions"}
+    # what ran: the method's canonical form and store hash (as `seal eval` files it), and the verdict order,
+    # which decides whether the trace repeats under load (slot) or depends on thread timing (arrival)
+    summary |= {"method": spec.canonical(), "config_hash": spec.config_hash, "verify_order": spec.verify_order}
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2))
     return result
