@@ -439,6 +439,7 @@ def test_a_damaged_shipped_checkpoint_is_refused_on_every_path(command, tmp_path
     assert sorted(p.name for p in tmp_path.iterdir()) == ["damaged"]  # no database, no run folder
 
 
+@pytest.mark.slow  # three 40-step rollouts of the twin (~20-60 s): `make test-slow`
 def test_a_reference_rollout_says_whether_this_machine_drives_the_checkpoint_alike(tmp_path):
     """Recorded and checked on one machine it reproduces; a manifest from a machine whose kernels round
     otherwise (stood in for by an edited record) is reported with how far and how soon it drifts."""
