@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import json
 import multiprocessing
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -203,8 +203,6 @@ def run_dagger_episode(job: DaggerJob) -> tuple[DaggerJob, dict, Episode | None,
         # a whole task's budget from there: is the state recoverable at all, not "in what the episode had left"
         attempt["teacher_check"] = teacher_recovers(world, check[0], max_steps) | {"from_step": check[1],
                                                                                   "frame": check[2]}
-    reasons = [r["reasoning"] for r in rec.rows]
-    first_valid = next((r for r in rec.rows if r["valid"]), rec.rows[0])
     plans = list(expert.plans(obs.scene)) if obs.scene is not None else []
     episode = Episode(
         instruction=world.instruction, agent_images=np.stack(rec.agent), wrist_images=np.stack(rec.wrist),
@@ -217,7 +215,7 @@ def run_dagger_episode(job: DaggerJob) -> tuple[DaggerJob, dict, Episode | None,
               "success": success, "dagger": {"round": job.round, "beta": job.beta, "ckpt": job.ckpt,
                                              "ended": ended, "executed": executed,
                                              "frame_steps": [r["step"] for r in rec.rows]},
-              "reasoning": [[r["step"], t] for r, t in zip(rec.rows, reasons)], "first_label": first_valid["reasoning"]})
+              "reasoning": [[r["step"], r["reasoning"]] for r in rec.rows]})
     return job, attempt, episode, rec.rows
 
 
@@ -294,7 +292,6 @@ class DaggerSummary:
     vla_done_early: int = 0
     teacher_checks: int = 0  # rollouts where the expert was let to finish alone from one boundary
     teacher_recovered: int = 0  # ...and reached the goal
-    why: dict = field(default_factory=dict)  # invalid-label reason (its first words) -> count
 
 
 def _attempted(root: Path) -> set[tuple[str, int, int]]:
@@ -370,10 +367,6 @@ def collect_dagger(suite: str, out: Path, *, ckpt: str, episodes_per_task: int, 
                 summary.frames += len(rows)
                 summary.invalid_labels += sum(not r["valid"] for r in rows)
                 summary.think_labels += sum(r["think"] for r in rows)
-                for r in rows:
-                    if not r["valid"]:
-                        key = r["why"].split(":")[0][:60]
-                        summary.why[key] = summary.why.get(key, 0) + 1
             summary.successes += attempt["success"]
             if "teacher_check" in attempt:
                 summary.teacher_checks += 1
