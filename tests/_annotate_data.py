@@ -16,7 +16,8 @@ from seal.datasets import Episode, LeRobotWriter
 PLANS = ["pick up the black bowl", "place it on the plate", "pick up the mug", "place it on the plate"]
 
 
-def synthetic_episode(T: int, seed: int, instruction: str = "put the bowl and the mug on the plate") -> Episode:
+def synthetic_episode(T: int, seed: int, instruction: str = "put the bowl and the mug on the plate",
+                      meta: dict | None = None) -> Episode:
     rng = np.random.default_rng(seed)
     y, x = np.mgrid[0:224, 0:224]
     agent = np.empty((T, 224, 224, 3), np.uint8)
@@ -32,11 +33,12 @@ def synthetic_episode(T: int, seed: int, instruction: str = "put the bowl and th
                    states=rng.normal(size=(T, 8)).astype(np.float32),
                    actions=rng.uniform(-1, 1, size=(T, 7)).astype(np.float32),
                    subplans=list(PLANS), critical_frames=frames,
-                   meta={"suite": "synthetic", "task_id": 0, "init_index": seed})
+                   meta={"suite": "synthetic", "task_id": 0, "init_index": seed} | (meta or {}))
 
 
-def make_v21(root: Path, lengths: list[int]) -> list[Episode]:
-    episodes = [synthetic_episode(T, seed=i) for i, T in enumerate(lengths)]
+def make_v21(root: Path, lengths: list[int], meta: dict | None = None) -> list[Episode]:
+    """``meta``: extra recorder fields for every episode (e.g. the render model)."""
+    episodes = [synthetic_episode(T, seed=i, meta=meta) for i, T in enumerate(lengths)]
     with LeRobotWriter(root, fps=20) as w:
         for e in episodes:
             w.add(e)

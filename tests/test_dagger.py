@@ -93,14 +93,23 @@ def test_a_round_resumes_without_recording_anything_twice_and_trains_beside_demo
     from seal.annotate.backends import make_annotator
     from seal.annotate.pipeline import annotate_dataset
 
-    make_v21(tmp_path / "demos", [40, 35, 45])
-    annotate_dataset(tmp_path / "demos", tmp_path / "demos_ann", make_annotator("offline"))
+    from seal.sim.fast_assets import CACHE_VERSION
+
     run = tmp_path / "run"
+    # demonstrations in another render model than the model and the rollouts: refused before any work
+    make_v21(tmp_path / "stock", [40, 35])
+    annotate_dataset(tmp_path / "stock", tmp_path / "stock_ann", make_annotator("offline"))
+    assert main(["train", "vla", "--annotations", f"{tmp_path}/stock_ann", "--out", str(run), "--steps", "3",
+                 "--init-from", "reason", "--no-bf16"]) == 2
+    assert "learned from 'fast' pixels" in capsys.readouterr().err and not run.exists()
+    make_v21(tmp_path / "demos", [40, 35, 45], meta={"render_mode": "fast", "fast_version": CACHE_VERSION})
+    annotate_dataset(tmp_path / "demos", tmp_path / "demos_ann", make_annotator("offline"))
     assert main(["train", "vla", "--annotations", f"{tmp_path}/demos_ann,{out}/annotations", "--mix", "1,1",
                  "--out", str(run), "--steps", "3", "--batch", "8", "--eval-every", "100", "--holdout", "0.34",
                  "--init-from", "reason", "--instruction-dropout", "0.3", "--no-bf16"]) == 0
     manifest = json.loads((run / "checkpoint/manifest.json").read_text())
     assert manifest["init_from"] == "reason" and manifest["train_config"]["instruction_dropout"] == 0.3
+    assert manifest["render"] == {"mode": "fast", "fast_version": CACHE_VERSION}  # what rollouts render in
     assert [s["share"] for s in manifest["sources"]] == [0.5, 0.5] and manifest["sources"][1]["usable_frames"] == 6
 
 

@@ -411,6 +411,8 @@ def test_a_vla_runs_in_the_render_model_it_was_trained_in():
     fast = {"render_mode": "fast", "fast_version": CACHE_VERSION}
     assert recorded_render([fast, fast]) == {"mode": "fast", "fast_version": CACHE_VERSION}
     assert recorded_render([{}]) == {"mode": "stock", "fast_version": None}  # recordings before the field
+    # episodes.jsonl nests the recorder's fields under "meta": the render is read from there
+    assert recorded_render([{"episode_index": 0, "meta": fast}]) == {"mode": "fast", "fast_version": CACHE_VERSION}
     with pytest.raises(InvalidInput, match="recorded in different render models"):
         recorded_render([fast, {"render_mode": "stock"}])
 

@@ -451,7 +451,9 @@ def recorded_render(metas: list[dict]) -> dict:
     """The render model the demonstrations were recorded in ({"mode", "fast_version"}): a pixel
     policy is evaluated in the same one (`MethodSpec` defaults to it). Mixed recordings are refused:
     the policy would be trained on two kinds of pixels and evaluated in one."""
-    seen = {(m.get("render_mode", "stock"), m.get("fast_version")) for m in metas}
+    # recorders nest their own fields under "meta" in episodes.jsonl (LeRobot keeps the top level)
+    inner = [m.get("meta", m) for m in metas]
+    seen = {(m.get("render_mode", "stock"), m.get("fast_version")) for m in inner}
     if len(seen) > 1:
         raise InvalidInput(f"the episodes were recorded in different render models {sorted(seen, key=str)}; "
                            "annotate and train on one recording")
@@ -535,10 +537,17 @@ def train_vla(dataset: Path | None, annotations: Path | list[Path], out: Path, c
     sources = _sources(annotations, dataset, cfg)
     ann, annotated, train_eps, held_eps = sources[0]
     episodes = train_eps + held_eps
+    # one render model across every source (and the model fine-tuned): checked before any work
+    render = recorded_render([a.source.episode_meta(e) for a, annotated_i, _, _ in sources for e in annotated_i])
     init = None
     if init_from:
-        from seal.policies.vla.locate import resolve_checkpoint
+        from seal.policies.vla.locate import resolve_checkpoint, trained_render
 
+        was = trained_render(init_from)
+        if was["recorded"] and (was["mode"], was["fast_version"]) != (render["mode"], render["fast_version"]):
+            raise InvalidInput(f"--init-from {init_from} learned from {was['mode']!r} pixels (fast version "
+                               f"{was['fast_version']}), the data is {render['mode']!r} (fast version "
+                               f"{render['fast_version']}); fine-tune on data of the model's own render")
         init = load_checkpoint(resolve_checkpoint(init_from))
         model_cfg = init[0].cfg
     out.mkdir(parents=True, exist_ok=True)  # not before: annotations that cannot be used leave no empty run directory
@@ -590,7 +599,7 @@ def train_vla(dataset: Path | None, annotations: Path | list[Path], out: Path, c
             model.set_normalization(s.mean(0), s.std(0), a.mean(0), a.std(0))
         (out / METRICS).unlink(missing_ok=True)
     manifest = {"command": command, "dataset": str(Path(ann.source.root).resolve()),
-                "render": recorded_render([ann.source.episode_meta(e) for e in episodes]),
+                "render": render,
                 "annotations": str(Path(annotations[0]).resolve()), "train_episodes": len(train_eps),
                 "failed_demos_left_out": len(annotated) - len(episodes),
                 "heldout_episodes": held_eps, "train_frames": n_train, "code_version": _code_version(),
