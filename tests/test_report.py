@@ -32,6 +32,8 @@ from seal.report.stats import (
 from seal.report.tables import paired_rows
 
 BASE, SEAL, SEAL2 = MethodSpec(method="base"), MethodSpec(k=10), MethodSpec(k=2)
+# Their names in the report (seal.report.labels).
+BASE_N, SEAL_N, SEAL2_N = "scripted expert", "scripted expert + SEAL (oracle)", "scripted expert + SEAL (oracle, K=2)"
 HOSTILE = "<script>document.body.setAttribute('data-pwned','1')</script><img src=x onerror=alert(1)> & \"q\""
 N = 10  # trials per task
 
@@ -150,17 +152,17 @@ def test_paired_differences_on_the_store(store_path):
     assert data.pairs(SEAL.config_hash, BASE.config_hash, "composition") == [(t < 4, False) for t in range(N)]
     rows = {(r.suite, r.a.label, r.b.label): r.result for r in paired_rows(data)}
     # libero_10: task 0 base 5/10 vs seal 9/10, task 1 both 10/10; seal's unpaired trial 10 left out.
-    d = rows[("libero_10", "seal", "base")]
+    d = rows[("libero_10", SEAL_N, BASE_N)]
     assert (d.n, d.both, d.only_a, d.only_b, d.neither) == (20, 15, 4, 0, 1)
     assert d.diff == pytest.approx(0.2)
     assert d.p_value == pytest.approx(2 / 16)
     assert d.ci == pytest.approx(paired_from_counts(15, 4, 0, 1).ci)
     # Overall: composition adds 4 seal-only successes over 10 more pairs.
-    d = rows[("all", "seal", "base")]
+    d = rows[("all", SEAL_N, BASE_N)]
     assert (d.n, d.only_a, d.only_b) == (30, 8, 0) and d.diff == pytest.approx(8 / 30)
     assert d.ci[0] > 0  # eight discordant pairs all one way: a real difference
     # seal[k=2]'s only composition trial crashed (stored with success=1): it pairs as a failure.
-    d = rows[("composition", "seal[k=2]", "base")]
+    d = rows[("composition", SEAL2_N, BASE_N)]
     assert (d.n, d.neither) == (1, 1)
 
 
@@ -174,7 +176,7 @@ def test_markdown_layout(report):
     md = report.markdown.read_text()
     rows = _md_table(md, "libero_10: success rate (%)")
     header = rows[0]
-    assert header[:5] == ["Task", "Instruction", "base", "seal[k=2]", "seal"]
+    assert header[:5] == ["Task", "Instruction", BASE_N, SEAL2_N, SEAL_N]
     assert header[5:] == ["paper π0-reason", "paper SEAL"]
     assert [r[0] for r in rows[2:]] == ["0", "1", "Average"]
     task0, task1, avg = rows[2], rows[3], rows[4]
@@ -187,7 +189,7 @@ def test_markdown_layout(report):
     # The paper's Table VII/II numbers, trained on LIBERO-100, task 0: pi0_reason 90, seal 100.
     assert task0[5:] == ["90.0", "100.0"]
     comp = _md_table(md, "composition: success rate (%)")
-    assert comp[0][2:] == ["base", "seal[k=2]", "seal", "paper π0-reason", "paper SEAL"]
+    assert comp[0][2:] == [BASE_N, SEAL2_N, SEAL_N, "paper π0-reason", "paper SEAL"]
     assert "1 err" in comp[2][3] and comp[2][3].startswith("0.0")  # crash with success=1 stored: failure
     assert "RuntimeError: <boom> & bust" in md  # error trials listed with their last traceback line
 
@@ -196,27 +198,27 @@ def test_csv_layout(report):
     by_name = {p.name: p for p in report.csv}
     rows = list(csv.DictReader(by_name["success_libero_10.csv"].read_text().splitlines()))
     assert [r["task"] for r in rows] == ["0", "1", "average"]
-    assert float(rows[0]["base success_pct"]) == 50.0 and rows[0]["base n"] == "10"
-    assert float(rows[0]["seal ci_low"]) == pytest.approx(100 * wilson(10, 11)[0], abs=0.01)
-    assert rows[0]["paper seal"] == "100.0" and rows[2]["seal n"] == "21"
+    assert float(rows[0][f"{BASE_N} success_pct"]) == 50.0 and rows[0][f"{BASE_N} n"] == "10"
+    assert float(rows[0][f"{SEAL_N} ci_low"]) == pytest.approx(100 * wilson(10, 11)[0], abs=0.01)
+    assert rows[0]["paper seal"] == "100.0" and rows[2][f"{SEAL_N} n"] == "21"
     long = list(csv.DictReader(by_name["success_long.csv"].read_text().splitlines()))
-    comp = [r for r in long if r["suite"] == "composition" and r["method"] == "seal[k=2]" and r["task"] == "3"]
+    comp = [r for r in long if r["suite"] == "composition" and r["method"] == SEAL2_N and r["task"] == "3"]
     assert comp[0]["errors"] == "1" and comp[0]["successes"] == "0"
     runtime = {r["method"]: r for r in csv.DictReader(by_name["runtime.csv"].read_text().splitlines())}
-    assert float(runtime["base"]["wall_s_per_executed_step"]) == pytest.approx(0.2)  # 20 s / 100 steps
-    assert float(runtime["seal[k=2]"]["verifier_calls_per_trial"]) == pytest.approx(60 / 21, abs=0.01)
+    assert float(runtime[BASE_N]["wall_s_per_executed_step"]) == pytest.approx(0.2)  # 20 s / 100 steps
+    assert float(runtime[SEAL2_N]["verifier_calls_per_trial"]) == pytest.approx(60 / 21, abs=0.01)
     align = {r["method"]: r for r in csv.DictReader(by_name["alignment.csv"].read_text().splitlines())}
     endings = {(r["method"], r["ended_by"]): (int(r["episodes"]), int(r["failed"]))
                for r in csv.DictReader(by_name["endings.csv"].read_text().splitlines())}
     # base: 15 successes; of the 5 failures of libero_10 task 0, trial 5's trace says idle and 4 say
     # nothing; composition's 10 failures were stored as policy_finished. The crashed SEAL2 row is "error".
-    assert {k[1]: v for k, v in endings.items() if k[0] == "base"} == {
+    assert {k[1]: v for k, v in endings.items() if k[0] == BASE_N} == {
         "goal_holds": (15, 0), "idle": (1, 1), "not recorded": (4, 4), "policy_finished": (10, 10)}
-    assert endings[("seal[k=2]", "error")] == (1, 1)
-    assert float(align["base"]["alignment_rate"]) == 0.5 and float(align["seal[k=2]"]["alignment_rate"]) == 1.0
-    assert align["base"]["subplans_audited"] == str(2 * N * 3)  # 2 per trial, 3 tasks; totals, not a mean of rates
+    assert endings[(SEAL2_N, "error")] == (1, 1)
+    assert float(align[BASE_N]["alignment_rate"]) == 0.5 and float(align[SEAL2_N]["alignment_rate"]) == 1.0
+    assert align[BASE_N]["subplans_audited"] == str(2 * N * 3)  # 2 per trial, 3 tasks; totals, not a mean of rates
     errors = list(csv.DictReader(by_name["errors.csv"].read_text().splitlines()))
-    assert len(errors) == 1 and errors[0]["method"] == "seal[k=2]"
+    assert len(errors) == 1 and errors[0]["method"] == SEAL2_N
 
 
 def test_plots_written(report):

@@ -38,7 +38,7 @@ def write_report(db: str | Path, out_dir: str | Path, *, runs_dir: str | Path | 
     ``link`` to them relatively, or ``none``. ``paper_training``: the paper's training set whose
     numbers go beside ours. ``progress(done, total)`` is called as episode pages are written.
     """
-    from seal.report import html, plots, tables
+    from seal.report import html, paper_layout, plots, tables
 
     if media not in html.MEDIA_MODES:
         raise InvalidInput(f"unknown media mode {media!r}; valid: {', '.join(html.MEDIA_MODES)}")
@@ -56,12 +56,15 @@ def write_report(db: str | Path, out_dir: str | Path, *, runs_dir: str | Path | 
     runtime = tables.runtime_rows(data)
     alignment = tables.alignment_rows(data)
     endings = tables.ending_rows(data)
+    layouts = paper_layout.layout_sections(data, paper, paper_training)
 
     csvs = []
     for st in success:
         csvs.append(_write(out / "csv" / f"success_{st.suite}.csv", tables.success_csv(st)))
     csvs.append(_write(out / "csv" / "success_long.csv", tables.long_csv(data, success)))
     csvs.append(_write(out / "csv" / "paired_differences.csv", tables.paired_csv(paired)))
+    csvs.append(_write(out / "csv" / "seal_minus_base.csv",
+                       paper_layout.differences_csv([lay for _, group in layouts for lay in group])))
     csvs.append(_write(out / "csv" / "runtime.csv", tables.runtime_csv(runtime)))
     csvs.append(_write(out / "csv" / "alignment.csv", tables.alignment_csv(alignment)))
     csvs.append(_write(out / "csv" / "endings.csv", tables.ending_csv(endings)))
@@ -72,6 +75,7 @@ def write_report(db: str | Path, out_dir: str | Path, *, runs_dir: str | Path | 
                   plots.runtime_vs_k_plot(data, runtime, out / "plots" / "runtime_vs_k.png")]
 
     sections = [("Success", [tables.success_display(st) for st in success]),
+                *[(title, [paper_layout.layout_display(lay) for lay in group]) for title, group in layouts],
                 ("Paired differences", [tables.paired_display(paired)]),
                 ("Alignment", [tables.alignment_display(alignment)]),
                 ("Endings", [tables.ending_display(endings)]),

@@ -9,16 +9,19 @@ broken run for a bad method.
 from __future__ import annotations
 
 import csv
+import hashlib
 import json
 import math
 import re
-from collections import defaultdict
+from collections import Counter, defaultdict
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
 from seal.errors import InvalidInput
 from seal.eval.store import ResultStore, TrialRow
+from seal.report.labels import display_name, shipped_vlas
+from seal.report.paper import PAPER_ORDER, paper_method_for
 from seal.report.stats import wilson
 
 SUITE_ORDER = ("libero_10", "lang_rephrase", "lang_object_property", "visual_scene", "visual_viewpoint",
@@ -30,27 +33,29 @@ INSTRUCTIONS_FROM = {"visual_scene": "libero_10", "visual_viewpoint": "libero_10
 
 @dataclass(frozen=True)
 class MethodInfo:
-    """One method configuration (a column of the tables)."""
+    """One method configuration (a column of the tables).
+
+    ``label`` is the name a person would write ("reasoning VLA + SEAL (oracle)", see
+    `seal.report.labels`), unique within a report; ``spec_label`` is what `seal eval` stored
+    (``seal[k=2]``); ``family`` the label without K (configs that differ only in K form one line in
+    runtime-vs-K plots); ``paper_method`` the paper's column beside it, if any.
+    """
 
     config_hash: str
     label: str
     config: dict
+    spec_label: str = ""
+    family: str = ""
+    paper_method: str | None = None
 
     @property
     def method(self) -> str:
-        return str(self.config.get("method") or self.label.split("[")[0])
+        return str(self.config.get("method") or self.spec_label.split("[")[0])
 
     @property
     def k(self) -> int:
         """Candidates per sub-plan; base runs one."""
         return 1 if self.method == "base" else int(self.config.get("k", 1))
-
-    @property
-    def family(self) -> str:
-        """The label without K: configs that differ only in K form one line in runtime-vs-K plots."""
-        name, _, rest = self.label.partition("[")
-        extra = [item for item in rest.rstrip("]").split(",") if item and not re.fullmatch(r"k=\d+", item)]
-        return name + (f"[{','.join(extra)}]" if extra else "")
 
 
 @dataclass
@@ -126,17 +131,23 @@ class ReportData:
                 out.add(r)
         return out
 
-    def pairs(self, hash_a: str, hash_b: str, suite: str | None = None) -> list[tuple[bool, bool]]:
-        """(A succeeded, B succeeded) on every (suite, task, trial) both methods ran: the same
-        init state and seed, so the comparison is paired."""
+    def pairs(self, hash_a: str, hash_b: str, suite: str | None = None,
+              task: int | None = None) -> list[tuple[bool, bool]]:
+        """(A succeeded, B succeeded) on every (suite, task, trial) both methods ran (within one
+        suite, or one task of it, if given): the same init state and seed, so the comparison is paired."""
         out = []
-        for (h, s, task, trial), ok in sorted(self._outcome.items()):
-            if h != hash_a or (suite is not None and s != suite):
+        for (h, s, t, trial), ok in sorted(self._outcome.items()):
+            if h != hash_a or (suite is not None and s != suite) or (task is not None and t != task):
                 continue
-            other = self._outcome.get((hash_b, s, task, trial))
+            other = self._outcome.get((hash_b, s, t, trial))
             if other is not None:
                 out.append((ok, other))
         return out
+
+    def label_of(self, row: TrialRow) -> str:
+        """The readable name of a trial's method (its stored label if the store never registered it)."""
+        info = self.by_hash.get(row.config_hash)
+        return info.label if info else row.method
 
     def errors(self) -> list[TrialRow]:
         return [r for r in self.rows if r.status == "error"]
@@ -202,21 +213,51 @@ def _last_event(trace: Path) -> dict:
 
 
 def _method_list(rows: list[TrialRow], registered: dict[str, tuple[str, dict]]) -> list[MethodInfo]:
-    seen: dict[str, MethodInfo] = {}
+    """One MethodInfo per config hash in the rows, named and ordered base, random, value, seal (then
+    in the paper's column order, so the twin before the reasoning VLA, then by family and K). A
+    configuration the store never registered keeps its stored label."""
+    vlas = shipped_vlas()
+    configs: dict[str, tuple[str, dict, bool]] = {}
     for r in rows:
-        if r.config_hash not in seen:
-            label, config = registered.get(r.config_hash, (r.method, {"method": r.method.split("[")[0]}))
-            seen[r.config_hash] = MethodInfo(r.config_hash, label, config)
-    labels = [m.label for m in seen.values()]
-    out = []
-    for m in seen.values():  # two configs with one label would make ambiguous columns
-        out.append(m if labels.count(m.label) == 1 else MethodInfo(m.config_hash, f"{m.label}#{m.config_hash[:6]}", m.config))
+        if r.config_hash not in configs:
+            spec_label, config = registered.get(r.config_hash, (r.method, {"method": r.method.split("[")[0]}))
+            configs[r.config_hash] = (spec_label, config, r.config_hash in registered)
+    names = unique_names({h: display_name(c, vlas) if known else s for h, (s, c, known) in configs.items()},
+                         {h: h[:6] for h in configs})
+    families = _families(configs, vlas)
+    out = [MethodInfo(h, names[h], c, s, families[h], paper_method_for(c, vlas)) for h, (s, c, _) in configs.items()]
 
     def order(m: MethodInfo):
         rank = METHOD_ORDER.index(m.method) if m.method in METHOD_ORDER else len(METHOD_ORDER)
-        return (rank, m.family, m.k, m.label)
+        paper_rank = PAPER_ORDER.index(m.paper_method) if m.paper_method in PAPER_ORDER else len(PAPER_ORDER)
+        return (rank, paper_rank, m.family, m.k, m.label)
 
     return sorted(out, key=order)
+
+
+def unique_names(names: dict[str, str], tags: dict[str, str]) -> dict[str, str]:
+    """Names that two keys share get the key's tag appended (``name#tag``): columns stay distinct."""
+    counts = Counter(names.values())
+    return {key: name if counts[name] == 1 else f"{name}#{tags[key]}" for key, name in names.items()}
+
+
+def _families(configs: dict[str, tuple[str, dict, bool]], vlas) -> dict[str, str]:
+    """config hash -> its name without K: configurations that differ only in K share it, any two
+    that differ in more never do."""
+    family_of, name_of = {}, {}
+    for h, (stored, config, known) in configs.items():
+        if known:
+            rest = {k: v for k, v in config.items() if k != "k"}
+            family = hashlib.sha1(json.dumps(rest, sort_keys=True).encode()).hexdigest()[:10]
+            name_of[family] = display_name(rest, vlas)
+        else:  # only the stored label is known: drop its k=N item
+            name, _, settings = stored.partition("[")
+            extra = [item for item in settings.rstrip("]").split(",") if item and not re.fullmatch(r"k=\d+", item)]
+            family = name + (f"[{','.join(extra)}]" if extra else "")
+            name_of[family] = family
+        family_of[h] = family
+    unique = unique_names(name_of, {f: f[:6] for f in name_of})
+    return {h: unique[f] for h, f in family_of.items()}
 
 
 def _instructions() -> dict[tuple[str, int], str]:

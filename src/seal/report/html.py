@@ -131,7 +131,7 @@ def write_index(data: ReportData, out_dir: Path, *, sections: list[tuple[str, li
         parts.append("<h3>Tracebacks</h3>")
         for r in data.errors():
             link = episode_pages.get(episode_id(r))
-            name = f"{r.method} {r.suite}/{r.task} #{r.trial}"
+            name = f"{data.label_of(r)} {r.suite}/{r.task} #{r.trial}"
             title = f'<a href="{quote(link.relative_to(out_dir).as_posix())}">{esc(name)}</a>' if link else esc(name)
             parts.append(f"<details><summary>{title}: {esc(last_line(r.error))}</summary><pre>{esc(r.error)}</pre></details>")
     parts.append('<h2 id="episodes">Episodes</h2>')
@@ -150,12 +150,13 @@ def _file_links(out_dir: Path, markdown: Path, csvs: list[Path]) -> str:
 
 
 def _methods_html(data: ReportData) -> str:
-    rows = "".join(f'<tr><td class="text">{esc(m.label)}</td><td class="text"><code>{esc(m.config_hash)}</code></td>'
+    rows = "".join(f'<tr><td class="text">{esc(m.label)}</td><td class="text"><code>{esc(m.spec_label)}</code></td>'
+                   f'<td class="text"><code>{esc(m.config_hash)}</code></td>'
                    f'<td class="text"><code>{esc(json.dumps(m.config, sort_keys=True))}</code></td></tr>'
                    for m in data.methods)
-    return ('<details><summary>Method configurations</summary><table><thead><tr><th class="text">label</th>'
-            f'<th class="text">config hash</th><th class="text">settings</th></tr></thead><tbody>{rows}</tbody>'
-            "</table></details>")
+    return ('<details><summary>Method configurations</summary><table><thead><tr><th class="text">method</th>'
+            '<th class="text">seal eval label</th><th class="text">config hash</th><th class="text">settings</th>'
+            f"</tr></thead><tbody>{rows}</tbody></table></details>")
 
 
 def _episode_index(data: ReportData, suite: str, pages: dict[str, Path], out_dir: Path) -> str:
@@ -191,7 +192,7 @@ def write_episode(data: ReportData, row: TrialRow, out_dir: Path, media: MediaPl
     ident = episode_id(row)
     page_dir = Path(out_dir) / "episodes"
     page_dir.mkdir(parents=True, exist_ok=True)
-    label = data.by_hash[row.config_hash].label if row.config_hash in data.by_hash else row.method
+    label = data.label_of(row)
     result = ("error", "err") if row.status == "error" else ("success", "ok") if succeeded(row) else ("failure", "fail")
     parts = ['<p><a href="../index.html#episodes">← report</a></p>',
              f"<h1>{esc(label)} · {esc(row.suite)} task {row.task} · trial {row.trial}</h1>",

@@ -3,8 +3,9 @@
 The csv already uses this project's suite names (libero_10, lang_rephrase, lang_object_property,
 visual_scene, visual_viewpoint, composition); what differs is the method naming and that several
 training sets are reported. Our methods sit beside the paper's as follows: ``base`` is the
-reasoning VLA without steering (``pi0_reason``), ``value`` is V-GPS (``pi0_vgps``), ``seal`` is
-``seal``; the paper's plain ``pi0`` and our ``random`` have no counterpart.
+reasoning VLA without steering (``pi0_reason``), except the shipped twin (the VLA trained without
+reasoning), which stands for the paper's plain ``pi0``; ``value`` is V-GPS (``pi0_vgps``), ``seal``
+is ``seal``; our ``random`` has no counterpart.
 """
 
 from __future__ import annotations
@@ -14,9 +15,11 @@ from dataclasses import dataclass
 from importlib import resources
 
 from seal.errors import InvalidInput
+from seal.report.labels import TWIN, KnownVLA, policy_name, shipped_vlas
 
 PAPER_METHOD = {"base": "pi0_reason", "value": "pi0_vgps", "seal": "seal"}
 PAPER_NAMES = {"pi0": "π0", "pi0_vgps": "π0+V-GPS", "pi0_reason": "π0-reason", "seal": "SEAL"}
+PAPER_ORDER = ("pi0", "pi0_vgps", "pi0_reason", "seal")  # the columns of Tables II, VII and VIII
 # LIBERO-100 is the only training set every table reports (Table II also has LIBERO-10 and
 # LIBERO-100+basket; Table VIII reports a task subset for those two).
 DEFAULT_TRAINING = "libero_100"
@@ -54,6 +57,11 @@ class PaperResults:
         return any(k[0] == suite and k[1] == training for k in self.rates)
 
 
-def paper_method_for(config: dict) -> str | None:
-    """The paper method shown beside one of ours, or None."""
-    return PAPER_METHOD.get(config.get("method", ""))
+def paper_method_for(config: dict, vlas: dict[str, KnownVLA] | None = None) -> str | None:
+    """The paper method shown beside one of ours, or None. ``vlas``: the VLA checkpoints known by
+    name (default: the shipped ones), which tell the twin from the reasoning VLA."""
+    method = config.get("method", "")
+    if method == "base" and config.get("policy") == "vla":
+        if policy_name(config, shipped_vlas() if vlas is None else vlas) == TWIN:
+            return "pi0"
+    return PAPER_METHOD.get(method)

@@ -11,7 +11,6 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from seal.report.data import Cell, ReportData
-from seal.report.paper import paper_method_for
 from seal.report.tables import RuntimeRow, SuccessTable
 
 
@@ -49,7 +48,7 @@ def success_plot(data: ReportData, tables: list[SuccessTable], path: Path) -> Pa
             x = i - 0.4 + width * (j + 0.5)
             xs.append(x)
             cells.append(st.cells["average"][st.methods.index(m)])
-            pm = paper_method_for(m.config)
+            pm = m.paper_method
             if pm in st.paper_methods and st.paper["average"][st.paper_methods.index(pm)] is not None:
                 paper_x.append(x)
                 paper_y.append(st.paper["average"][st.paper_methods.index(pm)])

@@ -14,7 +14,7 @@ from collections import Counter
 from dataclasses import dataclass, field
 
 from seal.report.data import Cell, MethodInfo, ReportData, succeeded
-from seal.report.paper import PAPER_NAMES, TABLES, PaperResults, paper_method_for
+from seal.report.paper import PAPER_NAMES, TABLES, PaperResults
 from seal.report.stats import PairedDifference, paired_difference, wilson
 
 
@@ -90,7 +90,7 @@ def success_table(data: ReportData, suite: str, paper: PaperResults, training: s
     paper_methods: list[str] = []
     if paper.has_suite(suite, training):
         for m in methods:
-            pm = paper_method_for(m.config)
+            pm = m.paper_method
             if pm and pm not in paper_methods:
                 paper_methods.append(pm)
     cells = {t: [data.cell(suite, t, m.config_hash) for m in methods] for t in tasks}
@@ -108,16 +108,21 @@ def _mean(values: list[float | None]) -> float | None:
     return sum(got) / len(got) if got else None
 
 
-def success_display(st: SuccessTable) -> Table:
+def usual_trials(st: SuccessTable) -> int:
+    """The most common trial count of a task cell: cells with another count say n=..."""
     counts = Counter(c.n for key in st.tasks for c in st.cells[key] if c.n)
-    usual = counts.most_common(1)[0][0] if counts else 0
+    return counts.most_common(1)[0][0] if counts else 0
+
+
+def success_display(st: SuccessTable) -> Table:
+    usual = usual_trials(st)
     headers = ["Task", "Instruction", *[m.label for m in st.methods],
                *[f"paper {PAPER_NAMES.get(pm, pm)}" for pm in st.paper_methods]]
     rows, bold = [], set()
     for i, key in enumerate(st.keys):
         row = ["Average" if key == "average" else str(key), "" if key == "average" else st.instructions.get(key, "")]
         for c in st.cells[key]:
-            row.append(_cell_text(c, usual if key != "average" else None))
+            row.append(cell_text(c, usual if key != "average" else None))
         row += ["–" if v is None else f"{v:.1f}" for v in st.paper[key]]
         rows.append(row)
         bold |= {(i, 2 + j) for j in st.best(key)}
@@ -129,7 +134,7 @@ def success_display(st: SuccessTable) -> Table:
     return Table(f"{st.suite}: success rate (%)", headers, rows, bold, notes)
 
 
-def _cell_text(c: Cell, usual: int | None) -> str:
+def cell_text(c: Cell, usual: int | None) -> str:
     if c.n == 0:
         return "–"
     lo, hi = c.ci
@@ -144,20 +149,20 @@ def success_csv(st: SuccessTable) -> str:
     headers = ["task", "instruction"]
     for m in st.methods:
         headers += [f"{m.label} success_pct", f"{m.label} ci_low", f"{m.label} ci_high", f"{m.label} n",
-                    f"{m.label} errors"]
+                    f"{m.label} errors", f"{m.label} config_hash"]
     headers += [f"paper {pm}" for pm in st.paper_methods]
     rows = []
     for key in st.keys:
         row = [key, st.instructions.get(key, "") if key != "average" else ""]
-        for c in st.cells[key]:
+        for m, c in zip(st.methods, st.cells[key]):
             lo, hi = c.ci
-            row += [_num(100 * c.rate), _num(100 * lo), _num(100 * hi), c.n, c.errors]
+            row += [num(100 * c.rate), num(100 * lo), num(100 * hi), c.n, c.errors, m.config_hash]
         row += ["" if v is None else v for v in st.paper[key]]
         rows.append(row)
     return to_csv(headers, rows)
 
 
-def _num(x: float, digits: int = 2):
+def num(x: float, digits: int = 2):
     return "" if math.isnan(x) else round(x, digits)
 
 
@@ -167,11 +172,11 @@ def long_csv(data: ReportData, tables: list[SuccessTable]) -> str:
     for st in tables:
         for key in st.keys:
             for j, (m, c) in enumerate(zip(st.methods, st.cells[key])):
-                pm = paper_method_for(m.config) if paper_method_for(m.config) in st.paper_methods else None
+                pm = m.paper_method if m.paper_method in st.paper_methods else None
                 pv = st.paper[key][st.paper_methods.index(pm)] if pm else None
                 lo, hi = c.ci
                 rows.append([st.suite, key, m.label, m.config_hash, c.n, c.successes, c.errors, c.sim_errors,
-                             _num(100 * c.rate), _num(100 * lo), _num(100 * hi), pm or "", "" if pv is None else pv])
+                             num(100 * c.rate), num(100 * lo), num(100 * hi), pm or "", "" if pv is None else pv])
     return to_csv(["suite", "task", "method", "config_hash", "trials", "successes", "errors", "sim_errors",
                    "success_pct", "ci_low", "ci_high", "paper_method", "paper_pct"], rows)
 
@@ -216,11 +221,11 @@ def paired_display(rows: list[PairedRow]) -> Table:
 
 
 def paired_csv(rows: list[PairedRow]) -> str:
-    return to_csv(["suite", "a", "b", "paired_trials", "both", "a_only", "b_only", "neither", "diff_pp",
-                   "ci_low_pp", "ci_high_pp", "mcnemar_p"],
-                  [[r.suite, r.a.label, r.b.label, r.result.n, r.result.both, r.result.only_a, r.result.only_b,
-                    r.result.neither, _num(100 * r.result.diff), _num(100 * r.result.ci[0]),
-                    _num(100 * r.result.ci[1]), round(r.result.p_value, 6)] for r in rows])
+    return to_csv(["suite", "a", "b", "a_config_hash", "b_config_hash", "paired_trials", "both", "a_only", "b_only",
+                   "neither", "diff_pp", "ci_low_pp", "ci_high_pp", "mcnemar_p"],
+                  [[r.suite, r.a.label, r.b.label, r.a.config_hash, r.b.config_hash, r.result.n, r.result.both,
+                    r.result.only_a, r.result.only_b, r.result.neither, num(100 * r.result.diff), num(100 * r.result.ci[0]),
+                    num(100 * r.result.ci[1]), round(r.result.p_value, 6)] for r in rows])
 
 
 # ---- runtime ------------------------------------------------------------------------------------
@@ -289,10 +294,10 @@ def runtime_csv(rows: list[RuntimeRow]) -> str:
                    "cost_usd_per_trial", "cost_usd_total", "fallbacks_per_trial", "verifier_errors",
                    "trials_mostly_unverified"],
                   [[r.method.label, r.method.config_hash, r.method.k, r.trials, r.steps,
-                    _num(r.per_trial(r.wall_s), 3), _num(r.wall_per_step_s, 5), _num(r.per_trial(r.step_s), 3),
-                    _num(r.per_trial(r.verify_wait_s), 3), _num(r.per_trial(r.verifier_calls), 2),
-                    _num(r.per_trial(r.input_tokens), 1), _num(r.per_trial(r.output_tokens), 1),
-                    _num(r.per_trial(r.cost_usd), 6), round(r.cost_usd, 6), _num(r.per_trial(r.fallbacks), 3),
+                    num(r.per_trial(r.wall_s), 3), num(r.wall_per_step_s, 5), num(r.per_trial(r.step_s), 3),
+                    num(r.per_trial(r.verify_wait_s), 3), num(r.per_trial(r.verifier_calls), 2),
+                    num(r.per_trial(r.input_tokens), 1), num(r.per_trial(r.output_tokens), 1),
+                    num(r.per_trial(r.cost_usd), 6), round(r.cost_usd, 6), num(r.per_trial(r.fallbacks), 3),
                     r.verifier_errors, r.unverified_trials] for r in rows])
 
 
@@ -337,7 +342,7 @@ def alignment_display(rows: list[AlignmentRow]) -> Table:
 def alignment_csv(rows: list[AlignmentRow]) -> str:
     return to_csv(["method", "config_hash", "k", "trials", "subplans_audited", "subplans_aligned", "alignment_rate"],
                   [[r.method.label, r.method.config_hash, r.method.k, r.trials, r.audited, r.aligned,
-                    _num(r.rate, 4)] for r in rows])
+                    num(r.rate, 4)] for r in rows])
 
 
 def _fmt(x: float, digits: int) -> str:
@@ -402,7 +407,7 @@ def ending_csv(rows: list[EndingRow]) -> str:
 
 # ---- error trials ------------------------------------------------------------------------------
 def error_display(data: ReportData) -> Table:
-    body = [[r.method, r.suite, str(r.task), str(r.trial), r.worker, last_line(r.error)] for r in data.errors()]
+    body = [[data.label_of(r), r.suite, str(r.task), str(r.trial), r.worker, last_line(r.error)] for r in data.errors()]
     notes = [] if body else ["No trial crashed."]
     return Table("Error trials (counted as failures)", ["Method", "Suite", "Task", "Trial", "Worker", "Error"],
                  body, set(), notes, left=6)
@@ -410,12 +415,12 @@ def error_display(data: ReportData) -> Table:
 
 def error_csv(data: ReportData) -> str:
     return to_csv(["method", "config_hash", "suite", "task", "trial", "worker", "error"],
-                  [[r.method, r.config_hash, r.suite, r.task, r.trial, r.worker, r.error] for r in data.errors()])
+                  [[data.label_of(r), r.config_hash, r.suite, r.task, r.trial, r.worker, r.error] for r in data.errors()])
 
 
 # ---- verifier errors ---------------------------------------------------------------------------
 def verifier_display(data: ReportData) -> Table:
-    body = [[r.method, r.suite, str(r.task), str(r.trial), str(r.verifier_calls), str(r.verifier_errors),
+    body = [[data.label_of(r), r.suite, str(r.task), str(r.trial), str(r.verifier_calls), str(r.verifier_errors),
              "yes" if r.verifier_unavailable else "no"] for r in data.verifier_trouble()]
     notes = [data.verifier_warning()] if body else ["Every verification got an answer."]
     return Table("Verifier errors", ["Method", "Suite", "Task", "Trial", "verifier calls", "no answer",
@@ -425,7 +430,7 @@ def verifier_display(data: ReportData) -> Table:
 def verifier_csv(data: ReportData) -> str:
     return to_csv(["method", "config_hash", "suite", "task", "trial", "verifier_calls", "verifier_errors",
                    "verifier_unavailable"],
-                  [[r.method, r.config_hash, r.suite, r.task, r.trial, r.verifier_calls, r.verifier_errors,
+                  [[data.label_of(r), r.config_hash, r.suite, r.task, r.trial, r.verifier_calls, r.verifier_errors,
                     int(r.verifier_unavailable)] for r in data.verifier_trouble()])
 
 

@@ -1,0 +1,173 @@
+"""Method names a person would write, made from the configuration a results store keeps.
+
+A store knows a method by its canonical settings (`MethodSpec.canonical`): the policy, how
+candidates are chosen, every setting that changes results, checkpoints named by the digest of
+their weights. `seal eval` labels it ``seal[policy=vla,render=fast,policy_ckpt=009dcdd7fb35]``;
+a report reads better with "reasoning VLA + SEAL (oracle)". The rules:
+
+- the policy first: "scripted expert", "reasoning VLA" and "twin" (the shipped VLA checkpoints,
+  recognised by their weights' digest), "VLA checkpoint 1a2b3c" for any other VLA, "remote policy";
+- then the steering method: nothing for base, "+ SEAL (<verifier>)", "+ V-GPS", "+ random pick";
+- then, in one parenthesis, only what differs from the usual: K when it is not 10, the verifier's
+  noise, rounds, pick rule, render model, physics mismatch and so on.
+
+The unsteered twin reads "twin (pi0)": it stands where the paper's plain pi0 stands. Two
+configurations can share a name (two V-GPS checkpoints, say); the report tells them apart with
+the config hash (`seal.report.data`).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+
+# MethodSpec's defaults for the settings named here (a test checks they agree). Kept as data so a
+# report does not import the steering code and what it pulls in.
+DEFAULTS = {"k": 10, "rounds": 2, "render": "stock", "mode": "sync", "knobs": "misaligned", "pick": "first",
+            "verify_order": "slot", "check_every": 20, "subplan_budget": 200, "planner": "", "prompt": "task",
+            "value_goal": "task", "false_positive": 0.0, "false_negative": 0.0}
+SHIPPED_VLA_NAMES = {"reason": "reasoning VLA", "twin": "twin"}
+TWIN = SHIPPED_VLA_NAMES["twin"]
+STEERING_NAMES = {"seal": "SEAL", "value": "V-GPS", "random": "random pick"}
+VERIFIER_NAMES = {"oracle": "oracle", "noisy": "noisy oracle", "learned": "learned verifier",
+                  "openai": "OpenAI VLM", "gemini": "Gemini VLM"}
+# Settings a name never shows: identities already in the policy's name, digests, or what the
+# method name says.
+_SILENT = {"method", "policy", "policy_ckpt", "value_ckpt"}
+
+
+@dataclass(frozen=True)
+class KnownVLA:
+    """A VLA checkpoint a name can be given to: what to call it and the render it was trained in."""
+
+    name: str
+    render: str
+
+
+def shipped_vlas() -> dict[str, KnownVLA]:
+    """Weights digest (as a store holds it) -> the shipped VLA checkpoint it is, read from the
+    checkpoints' manifests (no hashing; a missing or unreadable manifest is skipped)."""
+    from seal.checkpoint import MANIFEST
+    from seal.policies.vla.locate import SHIPPED, WEIGHTS
+
+    out = {}
+    for key, path in SHIPPED.items():
+        try:
+            manifest = json.loads((path / MANIFEST).read_text())
+        except (OSError, ValueError):
+            continue
+        digest = str((manifest.get("files", {}).get(WEIGHTS) or {}).get("sha256") or manifest.get("weights_sha256", ""))
+        if digest:
+            render = (manifest.get("render") or {}).get("mode", "stock")
+            out[digest[:12]] = KnownVLA(SHIPPED_VLA_NAMES.get(key, key), render)
+    return out
+
+
+def display_name(config: dict, vlas: dict[str, KnownVLA] | None = None) -> str:
+    """The name of a stored method configuration, e.g. "reasoning VLA + SEAL (oracle, K=4)".
+
+    ``vlas``: VLA checkpoints to recognise by digest (default: the shipped ones)."""
+    vlas = shipped_vlas() if vlas is None else vlas
+    method = str(config.get("method", ""))
+    policy = policy_name(config, vlas)
+    notes = _steering_notes(config) + _setting_notes(config, vlas)
+    if method == "base":
+        head = policy
+        if policy == TWIN:
+            notes.insert(0, "pi0")
+    else:
+        head = f"{policy} + {STEERING_NAMES.get(method, method)}"
+    leftover = [f"{k}={_show(v)}" for k, v in sorted(config.items()) if k not in _SILENT and k not in _NAMED]
+    notes += leftover  # a setting this module does not know yet still tells configurations apart
+    return head + (f" ({', '.join(notes)})" if notes else "")
+
+
+def policy_name(config: dict, vlas: dict[str, KnownVLA]) -> str:
+    """Who acts: "scripted expert", "reasoning VLA", "twin", "VLA checkpoint 1a2b3c", ..."""
+    policy = str(config.get("policy", ""))
+    if policy == "scripted":
+        return "clean scripted expert" if config.get("knobs") == "clean" else "scripted expert"
+    if policy == "vla":
+        digest = str(config.get("policy_ckpt", ""))
+        known = vlas.get(digest)
+        return known.name if known else f"VLA checkpoint {digest[:6]}".rstrip()
+    if policy == "remote":
+        return "remote policy"
+    return policy or "unknown policy"
+
+
+def usual_render(config: dict, vlas: dict[str, KnownVLA]) -> str | None:
+    """The render a policy runs with when none is asked for (None: not known for this checkpoint)."""
+    if config.get("policy") == "vla":
+        known = vlas.get(str(config.get("policy_ckpt", "")))
+        return known.render if known else None
+    return DEFAULTS["render"]
+
+
+def _steering_notes(config: dict) -> list[str]:
+    """What a steering method adds to its name: the verifier (always, for SEAL) and its settings."""
+    method = config.get("method")
+    if method == "base":
+        return []
+    notes = []
+    if method == "seal":
+        notes.append(_verifier_phrase(config))
+        notes += [f"{label} {100 * float(config[key]):g}%" for key, label in
+                  (("false_positive", "false passes"), ("false_negative", "false fails"))
+                  if float(config.get(key, 0.0)) != DEFAULTS[key]]
+    if "k" in config and int(config["k"]) != DEFAULTS["k"]:
+        notes.append(f"K={config['k']}")
+    if method == "seal":
+        if int(config.get("rounds", DEFAULTS["rounds"])) != DEFAULTS["rounds"]:
+            notes.append(f"{config['rounds']} rounds")
+        if config.get("pick", DEFAULTS["pick"]) != DEFAULTS["pick"]:
+            notes.append(f"{config['pick']} pick")
+        if config.get("verify_order", DEFAULTS["verify_order"]) != DEFAULTS["verify_order"]:
+            notes.append(f"verdicts by {config['verify_order']}")
+        if int(config.get("check_every", DEFAULTS["check_every"])) != DEFAULTS["check_every"]:
+            notes.append(f"check every {config['check_every']} steps")
+        if config.get("done_check") == "trust":
+            notes.append("policy's done trusted")
+    if config.get("value_goal", DEFAULTS["value_goal"]) != DEFAULTS["value_goal"]:
+        notes.append(f"{config['value_goal'].replace('subplan', 'sub-plan')} goal")
+    return notes
+
+
+def _verifier_phrase(config: dict) -> str:
+    verifier = str(config.get("verifier", "oracle"))
+    model = config.get("model")
+    if verifier in ("openai", "gemini") and model:
+        return str(model)
+    return VERIFIER_NAMES.get(verifier, verifier)
+
+
+def _setting_notes(config: dict, vlas: dict[str, KnownVLA]) -> list[str]:
+    """Settings of the episode itself (any method): render, replay, physics, budgets, planner."""
+    notes = []
+    render = config.get("render")
+    if render and render != usual_render(config, vlas):
+        notes.append(f"{render} render")
+    if config.get("mode", DEFAULTS["mode"]) != DEFAULTS["mode"]:
+        notes.append(str(config["mode"]))
+    if config.get("mismatch"):
+        notes.append("physics mismatch " + _show(config["mismatch"]))
+    if int(config.get("subplan_budget", DEFAULTS["subplan_budget"])) != DEFAULTS["subplan_budget"]:
+        notes.append(f"sub-plan budget {config['subplan_budget']}")
+    if config.get("planner"):
+        model = config.get("planner_model")
+        notes.append(f"{config['planner']} planner" + (f" {model}" if model else ""))
+    if config.get("prompt", DEFAULTS["prompt"]) != DEFAULTS["prompt"]:
+        notes.append(f"{config['prompt'].replace('subplan', 'sub-plan')} prompt")
+    return notes
+
+
+# Settings the functions above put into words (or deliberately leave out).
+_NAMED = {"knobs", "render", "mode", "mismatch", "subplan_budget", "planner", "planner_model", "annotations", "prompt",
+          "k", "rounds", "verifier", "model", "false_positive", "false_negative", "pick", "verify_order",
+          "check_every", "done_check", "value_goal"}
+
+
+def _show(value) -> str:
+    if isinstance(value, list):  # a physics mismatch: friction/mass/damping
+        return "/".join(f"{v:g}" if isinstance(v, float) else str(v) for v in value)
+    return str(value)

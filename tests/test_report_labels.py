@@ -1,0 +1,216 @@
+"""`seal report`'s method names and the paper's Table VII/VIII layout.
+
+Names: the methods of the generalization tables read as a person would write them, settings that
+differ from the usual are said briefly, and two configurations never share a column name. Layout:
+a tiny results store (written with the real ResultStore, no simulator) renders the Table VII and
+VIII sections with the paper's figures beside ours and a SEAL-minus-base difference that can be
+checked by hand.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+import re
+from dataclasses import fields
+
+import pytest
+
+from seal.eval.store import ResultStore, TrialRow
+from seal.report import write_report
+from seal.report.data import ReportData
+from seal.report.labels import DEFAULTS, KnownVLA, display_name, shipped_vlas
+from seal.report.paper import paper_method_for
+from seal.report.stats import paired_from_counts
+from seal.steer.method import MethodSpec
+
+HEX = re.compile(r"[0-9a-f]{6,}")
+VALUE_DIGEST, LEARNED_DIGEST = "0123456789ab", "fedcba987654"  # stand-ins for checkpoint digests
+
+
+def _config_hash(config: dict) -> str:
+    return hashlib.sha1(json.dumps(config, sort_keys=True).encode()).hexdigest()[:10]
+
+
+def _standard() -> dict[str, dict]:
+    """The issue's five methods, as canonical configs: built with MethodSpec where no trained
+    checkpoint beyond the shipped VLAs is needed, else derived from those (V-GPS and learned
+    verifier weights named by a digest, as a store holds them)."""
+    twin = MethodSpec(method="base", policy="vla:twin").canonical()
+    reason = MethodSpec(method="base", policy="vla").canonical()
+    oracle = MethodSpec(method="seal", policy="vla").canonical()
+    vgps = {**twin, "method": "value", "k": 10, "value_ckpt": VALUE_DIGEST, "value_goal": "task"}
+    learned = {**oracle, "verifier": "learned", "model": LEARNED_DIGEST}
+    return {"twin (pi0)": twin, "twin + V-GPS": vgps, "reasoning VLA": reason,
+            "reasoning VLA + SEAL (oracle)": oracle, "reasoning VLA + SEAL (learned verifier)": learned}
+
+
+# ---- names ----------------------------------------------------------------------------------------
+def test_defaults_agree_with_method_spec():
+    spec = MethodSpec()  # render is resolved at construction: the scripted expert's is stock
+    assert {k: getattr(spec, k) for k in DEFAULTS} == DEFAULTS
+    assert set(DEFAULTS) <= {f.name for f in fields(MethodSpec)}
+
+
+def test_standard_methods_read_as_a_person_would_write_them():
+    for name, config in _standard().items():
+        got = display_name(config)
+        assert got == name
+        assert not any(ch in got for ch in "[]=") and not HEX.search(got), got
+    assert display_name(MethodSpec(method="base").canonical()) == "scripted expert"
+    assert display_name(MethodSpec(method="seal").canonical()) == "scripted expert + SEAL (oracle)"
+    assert display_name(MethodSpec(method="random").canonical()) == "scripted expert + random pick"
+
+
+def test_the_paper_column_follows_the_policy():
+    expected = {"twin (pi0)": "pi0", "twin + V-GPS": "pi0_vgps", "reasoning VLA": "pi0_reason",
+                "reasoning VLA + SEAL (oracle)": "seal", "reasoning VLA + SEAL (learned verifier)": "seal"}
+    assert {name: paper_method_for(config) for name, config in _standard().items()} == expected
+
+
+def test_settings_that_differ_are_named_briefly():
+    assert display_name(MethodSpec(method="seal", k=4).canonical()) == "scripted expert + SEAL (oracle, K=4)"
+    assert display_name(MethodSpec(method="seal", policy="vla", pick="best", render="stock", rounds=3).canonical()) \
+        == "reasoning VLA + SEAL (oracle, 3 rounds, best pick, stock render)"
+    noisy = MethodSpec(method="seal", verifier="noisy", false_positive=0.1, knobs="clean").canonical()
+    assert display_name(noisy) == "clean scripted expert + SEAL (noisy oracle, false passes 10%)"
+    assert display_name(MethodSpec(method="base", policy="vla:twin", render="stock").canonical()) == \
+        "twin (pi0, stock render)"
+    # A VLA the report does not know is named by its weights, and says its render (its usual one is unknown).
+    other = {**MethodSpec(method="base", policy="vla").canonical(), "policy_ckpt": "a1b2c3d4e5f6"}
+    assert display_name(other, vlas={}) == "VLA checkpoint a1b2c3 (fast render)"
+    # A setting this version does not know still shows, so configurations stay apart.
+    assert display_name({**MethodSpec(method="seal").canonical(), "new_knob": 3}) == \
+        "scripted expert + SEAL (oracle, new_knob=3)"
+
+
+def test_shipped_checkpoints_are_known_by_their_digests():
+    known = shipped_vlas()
+    twin = MethodSpec(method="base", policy="vla:twin").canonical()["policy_ckpt"]
+    reason = MethodSpec(method="base", policy="vla").canonical()["policy_ckpt"]
+    assert known[twin].name == "twin" and known[reason].name == "reasoning VLA"
+    assert display_name(MethodSpec(method="base", policy="vla").canonical(),
+                        vlas={reason: KnownVLA("my VLA", "fast")}) == "my VLA"
+
+
+def test_distinct_configs_keep_distinct_names(tmp_path):
+    configs = list(_standard().values())
+    configs += [MethodSpec(method="seal", policy="vla", k=k).canonical() for k in (2, 4)]
+    configs.append({**configs[1], "value_ckpt": "ba9876543210"})  # a second V-GPS: same words, other weights
+    db = tmp_path / "names.db"
+    with ResultStore(db) as store:
+        for config in configs:
+            h = _config_hash(config)
+            store.register_method(h, config["method"], config)
+            store.add(TrialRow(method=config["method"], config_hash=h, suite="libero_10", task=0, trial=0,
+                               init_index=0, seed=0))
+    methods = ReportData(db).methods
+    labels = [m.label for m in methods]
+    assert len(set(labels)) == len(configs)
+    vgps = sorted(label for label in labels if label.startswith("twin + V-GPS"))
+    assert len(vgps) == 2 and all(re.fullmatch(r"twin \+ V-GPS#[0-9a-f]{6}", v) for v in vgps)
+    assert "reasoning VLA + SEAL (oracle, K=2)" in labels and "reasoning VLA + SEAL (oracle)" in labels
+    assert set(_standard()) - {"twin + V-GPS"} <= set(labels)  # the others kept their plain names
+    # Runtime-vs-K lines join the configurations that differ only in K.
+    oracle = [m for m in methods if m.label.startswith("reasoning VLA + SEAL (oracle")]
+    assert len(oracle) == 3 and {m.family for m in oracle} == {"reasoning VLA + SEAL (oracle)"}
+    assert len({m.family for m in methods}) == len(methods) - 2
+
+
+# ---- Table VII / VIII layout ------------------------------------------------------------------------
+TRIALS = 3
+# Successful trials per (suite, task, method name): trial t succeeds if t is listed.
+WINS = {
+    ("lang_rephrase", 0): {"twin (pi0)": [0], "twin + V-GPS": [], "reasoning VLA": [0],
+                           "reasoning VLA + SEAL (oracle)": [0, 1, 2], "reasoning VLA + SEAL (learned verifier)": [1]},
+    ("lang_rephrase", 1): {"twin (pi0)": [], "twin + V-GPS": [2], "reasoning VLA": [],
+                           "reasoning VLA + SEAL (oracle)": [1], "reasoning VLA + SEAL (learned verifier)": []},
+    ("composition", 3): {"twin (pi0)": [], "twin + V-GPS": [], "reasoning VLA": [2],
+                         "reasoning VLA + SEAL (oracle)": [0, 2], "reasoning VLA + SEAL (learned verifier)": [0]},
+}
+ORACLE = "reasoning VLA + SEAL (oracle)"
+LEARNED = "reasoning VLA + SEAL (learned verifier)"
+
+
+@pytest.fixture(scope="module")
+def layout_report(tmp_path_factory):
+    root = tmp_path_factory.mktemp("layout")
+    db = root / "ood.db"
+    configs = _standard()
+    with ResultStore(db) as store:
+        for config in configs.values():
+            store.register_method(_config_hash(config), config["method"], config)
+        for (suite, task), wins in WINS.items():
+            for name, won in wins.items():
+                for t in range(TRIALS):
+                    store.add(TrialRow(method=configs[name]["method"], config_hash=_config_hash(configs[name]),
+                                       suite=suite, task=task, trial=t, init_index=t, seed=100 + t, success=t in won,
+                                       steps=50, wall_s=1.0))
+    return write_report(db, root / "report", episodes=False)
+
+
+def _md_table(md: str, title: str) -> list[list[str]]:
+    block = md.split(f"### {title}")[1].split("\n\n")[1]
+    return [[c.strip() for c in line.strip().strip("|").split(" | ")] for line in block.splitlines()]
+
+
+def _diff(both: int, seal_only: int, base_only: int, neither: int) -> str:
+    d = paired_from_counts(both, seal_only, base_only, neither)
+    return f"{100 * d.diff:+.1f} [{100 * d.ci[0]:+.1f}, {100 * d.ci[1]:+.1f}]"
+
+
+def test_table_vii_layout_renders_beside_the_paper(layout_report):
+    md = layout_report.markdown.read_text()
+    assert "## Table VII layout: out-of-distribution suites" in md
+    assert "## Table VIII layout: behavior composition" in md
+    assert "Table II layout" not in md  # the store holds no LIBERO-10 rows
+    rows = _md_table(md, "lang_rephrase: ours beside the paper (Table VII layout)")
+    assert rows[0] == ["Task", "twin (pi0)", "paper π0", "twin + V-GPS", "paper π0+V-GPS", "reasoning VLA",
+                       "paper π0-reason", LEARNED, ORACLE, "paper SEAL",
+                       f"{LEARNED} − reasoning VLA (pp)", f"{ORACLE} − reasoning VLA (pp)"]
+    assert [r[0] for r in rows[2:]] == ["0", "1", "Average"]
+    task0, task1, avg = rows[2], rows[3], rows[4]
+    # The paper's Table VII, Lang-Rephrase task 0: pi0 86, V-GPS 92, pi0-reason 92, SEAL 98.
+    assert [task0[i] for i in (2, 4, 6, 9)] == ["86.0", "92.0", "92.0", "98.0"]
+    assert task0[8] == "**100.0 [43.9, 100.0]**"  # 3/3, Wilson, the best of ours in the row
+    assert task0[5] == "33.3 [6.1, 79.2]"
+    # SEAL (oracle) - base on task 0: base wins trial 0, SEAL all three -> 1 both, 2 SEAL only: +66.7 pp.
+    assert task0[11] == _diff(1, 2, 0, 0) and task0[11].startswith("+66.7 [")
+    # Task 1: SEAL wins trial 1 only -> +33.3; the suite (Average row) pools the six pairs: +50.0.
+    assert task1[11] == _diff(0, 1, 0, 2) and task1[11].startswith("+33.3")
+    assert avg[11].strip("*") == _diff(1, 3, 0, 2) and avg[11].strip("*").startswith("+50.0")
+    # Learned verifier - base on task 0: base wins trial 0, learned trial 1 -> one each way: +0.0.
+    assert task0[10] == _diff(0, 1, 1, 1) and task0[10].startswith("+0.0")
+    # Paper average over the tasks shown: SEAL (98 + 100) / 2.
+    assert avg[9] == "99.0"
+
+
+def test_table_viii_layout_and_its_csv(layout_report):
+    md = layout_report.markdown.read_text()
+    rows = _md_table(md, "composition: ours beside the paper (Table VIII layout)")
+    task3 = rows[2]
+    # The paper's Table VIII (LIBERO-100), task 3: pi0 14, V-GPS 18, pi0-reason 2, SEAL 4.
+    assert [task3[i] for i in (2, 4, 6, 9)] == ["14.0", "18.0", "2.0", "4.0"]
+    # Oracle 0,2 vs base 2 -> both 1 (trial 2), SEAL only 1 (trial 0), neither 1.
+    assert task3[11] == _diff(1, 1, 0, 1)
+    by_name = {p.name: p for p in layout_report.csv}
+    diffs = list(csv.DictReader(by_name["seal_minus_base.csv"].read_text().splitlines()))
+    suite_row = next(r for r in diffs
+                     if (r["suite"], r["task"], r["seal"]) == ("lang_rephrase", "average", ORACLE))
+    assert (suite_row["paired_trials"], suite_row["both"], suite_row["seal_only"], suite_row["base_only"]) == \
+        ("6", "1", "3", "0")
+    assert float(suite_row["diff_pp"]) == 50.0 and suite_row["base"] == "reasoning VLA"
+    assert suite_row["seal_config_hash"] == _config_hash(_standard()[ORACLE])
+    # Readable names in the wide CSV's header, the config hash kept in its rows.
+    wide = list(csv.DictReader(by_name["success_lang_rephrase.csv"].read_text().splitlines()))
+    assert wide[0][f"{ORACLE} config_hash"] == _config_hash(_standard()[ORACLE])
+    assert float(wide[0][f"{ORACLE} success_pct"]) == 100.0
+
+
+def test_the_html_has_the_layout_and_the_names(layout_report):
+    index = layout_report.index_html.read_text()
+    assert "Table VII layout: out-of-distribution suites" in index
+    assert "lang_rephrase: ours beside the paper (Table VII layout)" in index
+    assert f"{ORACLE} − reasoning VLA (pp)" in index and "paper π0+V-GPS" in index
+    assert "seal[" not in index.split("Method configurations")[0]  # stored labels only in the configurations list
