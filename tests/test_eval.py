@@ -257,7 +257,7 @@ def test_store_migrates_an_older_schema(tmp_path):
         store.add(TrialRow(method="base", config_hash="h", suite="libero_10", task=0, trial=0, init_index=0, seed=0))
     con = sqlite3.connect(db)  # make it look like a v1 file (before policy_s and the verifier-error columns)
     for column in ("policy_s", "verifier_errors", "verifier_unavailable", "subplans_audited", "subplans_aligned",
-                   "ended_by"):
+                   "ended_by", "done_refusals"):
         con.execute(f"ALTER TABLE trials DROP COLUMN {column}")
     con.execute("UPDATE seal_meta SET value = '1' WHERE key = 'schema_version'")
     con.commit()
@@ -265,9 +265,9 @@ def test_store_migrates_an_older_schema(tmp_path):
     with ResultStore(db) as store:
         (row,) = store.rows()
     assert row.policy_s == 0.0 and row.verifier_errors == 0 and row.verifier_unavailable is False
-    assert (row.subplans_audited, row.subplans_aligned, row.ended_by) == (0, 0, "")
+    assert (row.subplans_audited, row.subplans_aligned, row.ended_by, row.done_refusals) == (0, 0, "", 0)
     con = sqlite3.connect(db)
-    assert con.execute("SELECT value FROM seal_meta WHERE key = 'schema_version'").fetchone()[0] == "5"
+    assert con.execute("SELECT value FROM seal_meta WHERE key = 'schema_version'").fetchone()[0] == "6"
     con.close()
 
 

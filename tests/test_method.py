@@ -20,9 +20,10 @@ SHORT = 40  # control steps: enough for a sub-plan round with K=2, short enough 
 def test_config_hashes_of_older_stores_are_kept():
     """Hashes written by the MethodSpec of eval/trials.py before the fields were added (computed
     with that code): a store made then must find its trials now."""
-    assert MethodSpec().config_hash == "7687d79a15"
+    # every SEAL result before the declared-completion check ran as done_check="trust"
+    assert MethodSpec(done_check="trust").config_hash == "7687d79a15"
     assert MethodSpec(method="base").config_hash == "85d6a51ef6"
-    assert MethodSpec(k=5, rounds=1, knobs="clean").config_hash == "d7489a2d17"
+    assert MethodSpec(k=5, rounds=1, knobs="clean", done_check="trust").config_hash == "d7489a2d17"
     assert MethodSpec(method="random", k=4, render="fast").config_hash == "259cb3eb85"
 
 
@@ -41,6 +42,10 @@ def test_new_settings_enter_the_hash_only_when_set():
     assert MethodSpec(verify_order="slot").config_hash == plain.config_hash
     assert MethodSpec(verify_order="arrival").label == "seal[verify_order=arrival]"
     assert MethodSpec(method="base", verify_order="arrival").config_hash == MethodSpec(method="base").config_hash
+    # the check changed what SEAL does by default: a new hash, and "trust" names the old behaviour
+    assert MethodSpec().config_hash != MethodSpec(done_check="trust").config_hash
+    assert MethodSpec(done_check="trust").label == "seal[done_check=trust]" and MethodSpec().label == "seal"
+    assert MethodSpec(method="base", done_check="trust").config_hash == MethodSpec(method="base").config_hash
 
 
 def test_eval_takes_verdicts_in_slot_order_and_run_as_they_arrive():

@@ -368,3 +368,32 @@ def test_an_episode_says_why_it_ended(pool, tmp_path):
     assert not result.success and result.ended_by == end["ended_by"] == "policy_finished"
     assert "Now I need to do: the task is complete." in end["reasoning"] == result.last_reasoning
     assert 0 < result.steps < BOOK.max_steps
+
+
+class AlwaysPasses(OracleVerifier):
+    """Says yes to everything: a verifier that cannot tell a false completion."""
+
+    async def verify(self, request) -> Verdict:
+        return Verdict(True, "looks done")
+
+
+def test_a_declared_completion_is_verified(pool, tmp_path):
+    """SEAL asks the verifier whether the instruction holds when the policy says the task is done:
+    the oracle refuses (the book is not on the shelf yet) and the policy goes back to its last
+    claimed sub-plan; a verifier that agrees, or done_check="trust", ends the episode there."""
+    config = SteerConfig(method="seal", k=2, rounds=1, subplan_budget=60, max_steps=200, done_check="verify")
+    with Trace(tmp_path / "verify.jsonl") as trace:
+        result = Steerer(pool, DeclaresDoneEarly(expert_policy(BOOK, FailureKnobs(), seed=0)), OracleVerifier(),
+                         config, trace=trace).run(0)
+    checks = [e for e in read_trace(tmp_path / "verify.jsonl") if e["event"] == "done_check"]
+    assert result.done_checks and result.done_checks[0] is False and checks[0]["refused"] is True
+    assert checks[0]["back_to"] == result.subplans[-1]  # the last sub-plan it claimed done, undone
+    assert "is false" in checks[0]["verdict"]["rationale"]  # the task's goal atoms, checked by the oracle
+    assert result.ended_by != "policy_finished"
+    # taken back to its last sub-plan, the expert finishes the task the false completion left undone
+    assert result.success and result.ended_by == "goal_holds"
+
+    for verifier, done_check, checks_made in ((AlwaysPasses(), "verify", [True]), (OracleVerifier(), "trust", [])):
+        result = Steerer(pool, DeclaresDoneEarly(expert_policy(BOOK, FailureKnobs(), seed=0)), verifier,
+                         replace(config, done_check=done_check)).run(0)
+        assert result.ended_by == "policy_finished" and not result.success and result.done_checks == checks_made

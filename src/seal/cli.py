@@ -32,7 +32,7 @@ def _cmd_run(args) -> int:
                              subscribers=(progress,))
     keys = ("task", "method", "init_index", "success", "ended_by", "sim_error", "steps", "wall_s", "subplans",
             "goal_status", "verifier_calls", "verifier_errors", "verifier_unavailable", "rounds", "fallbacks",
-            "divergence", "timing", "trace")
+            "done_checks", "divergence", "timing", "trace")
     print(json.dumps({k: getattr(result, k) for k in keys}, indent=2))
     return 0
 
@@ -570,6 +570,9 @@ _METHOD_OPTIONS = (
     ("--annotations", str, "annotations planner: JSON file or LeRobot dataset dir (default: the task's decomposition)"),
     ("--planner-model", str, "vlm planner: model name (default gpt-4o)"),
     ("--prompt", str, "remote server without reasoning: prompt with the task (default) or the current sub-plan"),
+    ("--done-check", str, "seal: verify (default) asks the verifier whether the instruction holds when the policy "
+                          "writes that the task is complete, and a refusal sends it back to its last claimed "
+                          "sub-plan | trust: the episode ends on the policy's word (results before the check)"),
     ("--verify-order", str, "seal: slot (`seal eval`'s default) waits at each chunk boundary for the verdicts of the "
                             "candidates that ended there and takes them candidate 0 first: the same seeds give the same "
                             "trace under any load | arrival (`seal run`'s default): verdicts are taken as they come in "

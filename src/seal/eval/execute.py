@@ -121,6 +121,7 @@ def fill_row(row: TrialRow, result) -> None:
     """A finished episode's `SteerResult` into its results-store row."""
     row.success, row.sim_error, row.steps = result.success, result.sim_error, result.steps
     row.ended_by = result.ended_by
+    row.done_refusals = sum(not accepted for accepted in result.done_checks)
     row.step_s = round(result.timing.get("predict_s", 0.0), 3)
     row.policy_s = round(result.timing.get("sampling_s", 0.0), 3)
     row.verify_wait_s = round(result.timing.get("verify_wait_s", 0.0), 3)

@@ -19,8 +19,8 @@ from pathlib import Path
 
 from seal.errors import InvalidInput
 
-SCHEMA_VERSION = 5  # v2 added trials.policy_s, v3 trials.verifier_errors and verifier_unavailable,
-# v4 trials.subplans_audited and subplans_aligned, v5 trials.ended_by
+SCHEMA_VERSION = 6  # v2 added trials.policy_s, v3 trials.verifier_errors and verifier_unavailable,
+# v4 trials.subplans_audited and subplans_aligned, v5 trials.ended_by, v6 trials.done_refusals
 MAGIC = "seal-results"
 
 _SCHEMA = """
@@ -57,6 +57,7 @@ CREATE TABLE trials (
     subplans_audited INTEGER NOT NULL DEFAULT 0,
     subplans_aligned INTEGER NOT NULL DEFAULT 0,
     ended_by TEXT NOT NULL DEFAULT '',
+    done_refusals INTEGER NOT NULL DEFAULT 0,
     subplans_json TEXT NOT NULL,
     goal_status_json TEXT NOT NULL,
     trace_path TEXT NOT NULL,
@@ -100,6 +101,7 @@ class TrialRow:
     subplans_audited: int = 0  # committed sub-plans the oracle could ground (the alignment audit)
     subplans_aligned: int = 0  # of those, the ones whose executed chunks achieved the sub-plan
     ended_by: str = ""  # why the episode stopped (SteerResult.ended_by); "" in rows stored before v5
+    done_refusals: int = 0  # times the verifier refused the policy's "the task is complete" (done_check)
     subplans: list = field(default_factory=list)
     goal_status: dict = field(default_factory=dict)
     trace_path: str = ""
@@ -210,6 +212,8 @@ class ResultStore:
                 self._db.execute("ALTER TABLE trials ADD COLUMN subplans_aligned INTEGER NOT NULL DEFAULT 0")
             if version < 5:  # older rows keep "": their traces may still say (the report looks there)
                 self._db.execute("ALTER TABLE trials ADD COLUMN ended_by TEXT NOT NULL DEFAULT ''")
+            if version < 6:  # older rows never asked: 0
+                self._db.execute("ALTER TABLE trials ADD COLUMN done_refusals INTEGER NOT NULL DEFAULT 0")
             self._db.execute("UPDATE seal_meta SET value = ? WHERE key = 'schema_version'", (str(SCHEMA_VERSION),))
 
     def close(self) -> None:

@@ -42,12 +42,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from seal.errors import InvalidInput
-from seal.policies.base import ACTION_HORIZON, images_for
+from seal.policies.base import ACTION_HORIZON, Reasoning, images_for
 from seal.sim.observation import Observation
 from seal.sim.snapshot import Snapshot
 from seal.steer.background import BackgroundVerifier
 from seal.steer.events import GridWriter, Subscriber
-from seal.steer.method import MODES, PICKS, VALUE_GOALS, VERIFY_ORDERS
+from seal.steer.method import DONE_CHECKS, MODES, PICKS, VALUE_GOALS, VERIFY_ORDERS
 from seal.steer.selection import METHODS, Candidate, Check, Subplan, selection_for
 from seal.steer.trace import Trace
 from seal.verify.base import Verdict, VerifyRequest
@@ -71,6 +71,7 @@ class SteerConfig:
     # seal: "slot" waits at each chunk boundary for the verdicts of the candidates that ended there and takes
     # them candidate 0 first (a function of the seeds); "arrival" takes them as they come in (MethodSpec.verify_order)
     verify_order: str = "slot"
+    done_check: str = "verify"  # seal: verify the policy's "the task is complete" (MethodSpec.done_check)
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -83,6 +84,8 @@ class SteerConfig:
             raise InvalidInput(f"unknown pick {self.pick!r}; valid: {', '.join(PICKS)}")
         if self.verify_order not in VERIFY_ORDERS:
             raise InvalidInput(f"unknown verify_order {self.verify_order!r}; valid: {', '.join(VERIFY_ORDERS)}")
+        if self.done_check not in DONE_CHECKS:
+            raise InvalidInput(f"unknown done_check {self.done_check!r}; valid: {', '.join(DONE_CHECKS)}")
         if self.k < 1 or self.rounds < 1 or self.subplan_budget < ACTION_HORIZON or self.check_every < ACTION_HORIZON:
             raise InvalidInput(f"need k >= 1, rounds >= 1, subplan_budget >= {ACTION_HORIZON}, check_every >= "
                                f"{ACTION_HORIZON}; got k={self.k}, rounds={self.rounds}, "
@@ -122,6 +125,8 @@ class SteerResult:
     timing: dict = field(default_factory=lambda: {"sampling_s": 0.0, "predict_s": 0.0, "verify_wait_s": 0.0,
                                                   "physics_cpu_s": 0.0, "render_cpu_s": 0.0})
     executed_actions: list = field(default_factory=list)
+    # per "the task is complete" the policy wrote (done_check="verify"): did the verifier let it end?
+    done_checks: list = field(default_factory=list)
     trace: str = ""
     # why the loop stopped: goal_holds | policy_finished (the policy wrote "the task is complete") |
     # step_limit | idle (it kept thinking without acting) | sim_error
@@ -180,6 +185,7 @@ class Steerer:
         scene = self._observe(0, images=False, atoms=[]).scene  # names only, for grounding
         self._objects = sorted(set(scene.bodies) | set(scene.sites))
         idle = 0
+        episode_first = None  # the agent view at the episode's start: "before" of a task-level check
         result.ended_by = "step_limit"  # unless something below ends it first
         background = BackgroundVerifier(self.verifier) if self.verifier is not None else None
         try:
@@ -190,12 +196,16 @@ class Steerer:
                 if judge_images and self.selection.verifies and self.policy_images is not True and self.policy_images:
                     # the policy's small view is not what a VLM judges: its "before" image at 224 too
                     first_agent = self._observe(0, images=True, atoms=None).agent
+                episode_first = first_agent if episode_first is None else episode_first
                 reasoning = self.policy.reason(obs)
                 if not result.subplans:
                     result.subplans = list(reasoning.plans)
                 if reasoning.finished:
-                    result.ended_by, result.last_reasoning = "policy_finished", reasoning.text()
-                    break
+                    reopened = self._check_done(reasoning, episode_first, committed.steps, background, result)
+                    if reopened is None:
+                        result.ended_by, result.last_reasoning = "policy_finished", reasoning.text()
+                        break
+                    reasoning = reopened
                 self._subplan_index += 1
                 self.emit("subplan", step=committed.steps, text=reasoning.now, reasoning=reasoning.text())
                 sub = Subplan(self._subplan_index, committed, obs, reasoning, max_steps, background, result,
@@ -229,6 +239,34 @@ class Steerer:
                   verifier_calls=result.verifier_calls, verifier_errors=result.verifier_errors,
                   verifier_unavailable=result.verifier_unavailable, fallbacks=result.fallbacks)
         return result
+
+    def _check_done(self, reasoning: Reasoning, first_agent, step: int, background: BackgroundVerifier | None,
+                    result: SteerResult) -> Reasoning | None:
+        """The policy wrote that the task is complete. Methods that verify ask the verifier whether
+        the instruction holds in the committed state (``done_check="verify"``). None: the episode
+        ends (the verifier agrees, cannot tell, or the method trusts the policy). Otherwise the
+        reasoning the policy goes back to: its last claimed sub-plan, undone, the likeliest to have
+        slipped (an object held over its target, a mug short of the microwave)."""
+        if background is None or not self.selection.verifies or self.config.done_check != "verify":
+            return None
+        if not reasoning.done:
+            return None  # it claims nothing done: there is no sub-plan to go back to
+        instruction = self.pool.task.instruction
+        request = VerifyRequest(subplan=instruction, instruction=instruction, plans=reasoning.plans,
+                                first_agent=first_agent, task=self.pool.task.key,
+                                goal_atoms=tuple(self._goal_atoms()))
+        final = self._observe(0, images=self.verifier.needs_images, atoms=self.verifier.atoms_needed(request, self._objects))
+        request.scene, request.final_agent, request.final_wrist = final.scene, final.agent, final.wrist
+        result.verifier_calls += 1
+        t0 = time.perf_counter()
+        verdict = background.submit(request).result()
+        result.timing["verify_wait_s"] += time.perf_counter() - t0
+        refused = verdict.success is False  # unknown: the verifier cannot overrule the policy without evidence
+        result.done_checks.append(not refused)
+        reopened = Reasoning(reasoning.plans, reasoning.done[:-1], reasoning.done[-1]) if refused else None
+        self.emit("done_check", step=step, reasoning=reasoning.text(), verdict=_verdict_dict(verdict),
+                  refused=refused, **({"back_to": reopened.now} if reopened else {}))
+        return reopened
 
     # ---- one round of K candidates -------------------------------------------------------------
     def run_round(self, sub: Subplan, r: int) -> Candidate | None:

@@ -12,6 +12,10 @@ The loop (`seal.steer.engine.Steerer`) publishes what happens as ``(event, field
     candidate    round, slot, steps, ended_by, error, snapshot, verdict, t_start, t_end, t_verified
                  (the t_* fields and a verdict's latency_s are clock readings: `seal.steer.trace.TIMING_FIELDS`)
     commit       slot, round, steps, snapshot, ended_by, verdict
+    done_check   step, reasoning, verdict, refused, back_to  the policy wrote that the task is complete and
+                                                            the verifier was asked whether the instruction
+                                                            holds (done_check="verify"); a refusal sends the
+                                                            policy back to ``back_to``, its last claimed sub-plan
     episode_end  success, steps, sim_error, ended_by (goal_holds | policy_finished | step_limit | idle |
                  sim_error; with policy_finished also the reasoning that said so)
 

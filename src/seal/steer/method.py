@@ -32,6 +32,10 @@ PICKS = ("first", "best")  # seal: the first candidate to pass, or the most conf
 # the candidates that ended there and takes them candidate 0 first (the trace is a function of the seeds);
 # "arrival": as they come in from the background verifier while sampling goes on (thread timing decides ties)
 VERIFY_ORDERS = ("slot", "arrival")
+# seal: what happens when the policy writes that the task is complete. "verify": the verifier is asked whether
+# the instruction holds, and a refusal sends the policy back to its last claimed sub-plan; "trust": the episode
+# ends on the policy's word (every result stored before the check existed)
+DONE_CHECKS = ("verify", "trust")
 RENDERS = ("stock", "fast")
 PLANNERS = ("", "annotations", "vlm")
 PROMPTS = ("task", "subplan")
@@ -40,6 +44,9 @@ TRANSPORTS = ("auto", "batched", "concurrent", "sequential")
 # Fields added after stores existed: in the canonical form only when not at their default.
 _LATER = ("mismatch", "check_every", "subplan_budget", "planner", "annotations", "planner_model", "prompt",
           "policy_ckpt", "pick", "verify_order")
+# Fields whose default changed behaviour when they were added: in the canonical form only when not at the
+# value every earlier result ran with, so stored results keep their hashes and new ones get new hashes.
+_LEGACY = {"done_check": "trust"}
 _NO_HASH = {"hash": False}  # where a model runs, not what it is
 
 
@@ -77,6 +84,7 @@ class MethodSpec:
     # the same seeds give the same episode under any load; "arrival" (`seal run`'s default) takes them as they
     # come in while sampling goes on, the paper's overlap of verification and sampling (see VERIFY_ORDERS)
     verify_order: str = "slot"
+    done_check: str = "verify"  # seal only (DONE_CHECKS); in the canonical form unless "trust" (see _LEGACY)
     # -- connection details, never hashed --
     base_url: str | None = field(default=None, metadata=_NO_HASH)  # OpenAI-compatible VLM server
     host: str = field(default="127.0.0.1", metadata=_NO_HASH)  # remote policy server
@@ -107,6 +115,7 @@ class MethodSpec:
         _one_of("value_goal", self.value_goal, VALUE_GOALS)
         _one_of("pick", self.pick, PICKS)
         _one_of("verify_order", self.verify_order, VERIFY_ORDERS)
+        _one_of("done_check", self.done_check, DONE_CHECKS)
         if self.render is None:
             object.__setattr__(self, "render", self._policy_render() or "stock")
         _one_of("render", self.render, RENDERS)
@@ -158,7 +167,8 @@ class MethodSpec:
 
         return SteerConfig(method=self.method, k=self.k, rounds=self.rounds, subplan_budget=self.subplan_budget,
                            mode=self.mode, max_steps=max_steps, seed=seed, value_goal=self.value_goal,
-                           check_every=self.check_every, pick=self.pick, verify_order=self.verify_order)
+                           check_every=self.check_every, pick=self.pick, verify_order=self.verify_order,
+                           done_check=self.done_check)
 
     def physics(self):
         """The prediction worlds' `PhysicsMismatch`, or None for the true physics."""
@@ -191,11 +201,13 @@ class MethodSpec:
         for f in fields(self):
             if not f.metadata.get("hash", True) or (f.name in _LATER and d[f.name] == defaults[f.name].default):
                 d.pop(f.name)
+            elif f.name in _LEGACY and d[f.name] == _LEGACY[f.name]:
+                d.pop(f.name)
         if d.get("mismatch") is not None:
             d["mismatch"] = list(d["mismatch"])
         if self.method != "seal":
             for name in ("verifier", "model", "false_positive", "false_negative", "rounds", "check_every", "pick",
-                         "verify_order"):
+                         "verify_order", "done_check"):
                 d.pop(name, None)
         elif self.verifier == "learned":  # the weights, not the path, decide the verdicts
             from seal.verify.learned import checkpoint_digest as learned_digest
@@ -227,7 +239,9 @@ class MethodSpec:
     def label(self) -> str:
         """Short column name for reports: the method, plus what differs from its defaults."""
         default = MethodSpec(method=self.method, value_ckpt=self.value_ckpt).canonical()
-        extra = [f"{k}={_show(v)}" for k, v in self.canonical().items() if k != "method" and default.get(k) != v]
+        mine = self.canonical()
+        extra = [f"{k}={_show(v)}" for k, v in mine.items() if k != "method" and default.get(k) != v]
+        extra += [f"{k}={_LEGACY[k]}" for k in _LEGACY if k in default and k not in mine]  # the old behaviour, named
         if self.method == "value":  # which weights, by their run directory's name
             extra.insert(0, f"ckpt={Path(self.value_ckpt).name}")
         return self.method + (f"[{','.join(extra)}]" if extra else "")

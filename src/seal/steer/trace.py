@@ -19,7 +19,7 @@ import math
 import time
 from pathlib import Path
 
-EVENTS = ("subplan", "candidate", "commit", "episode_end")  # what a trace file holds
+EVENTS = ("subplan", "candidate", "commit", "done_check", "episode_end")  # what a trace file holds
 # The fields that hold clock readings (seconds), at any depth of an event: all that may differ
 # between two runs of the same episode in slot order.
 TIMING_FIELDS = frozenset({"t", "t_start", "t_end", "t_verified", "latency_s"})

@@ -28,6 +28,14 @@ class VerifyRequest:
     scene: SceneState | None = None  # privileged end state (only the oracle reads it)
     task: str = ""  # e.g. "libero_10/0"
     candidate: int = 0
+    # A task-level question ("does the instruction hold?", asked when the policy says it is done):
+    # ``subplan`` is then the instruction, ``first_agent`` the episode's first view, and these are the
+    # task's goal atoms (the oracle checks them; a model that reads images judges the instruction text).
+    goal_atoms: tuple[str, ...] = ()
+
+    @property
+    def task_level(self) -> bool:
+        return bool(self.goal_atoms)
 
 
 @dataclass

@@ -220,6 +220,8 @@ class OracleVerifier:
     needs_images = False
 
     def atoms_needed(self, request: VerifyRequest, objects: list[str]) -> list[str]:
+        if request.task_level:  # the instruction: the task's own goal, no grounding of its words
+            return list(request.goal_atoms)
         return [str(a) for a in ground(request.subplan, request.plans, objects, request.index).atoms]
 
     async def verify(self, request: VerifyRequest) -> Verdict:
@@ -231,15 +233,19 @@ class OracleVerifier:
         scene = request.scene
         if scene is None:
             return Verdict(None, "the oracle needs the privileged end state", raw="")
-        names = sorted(set(scene.bodies) | set(scene.sites))
-        g = ground(request.subplan, request.plans, names, request.index)
-        if not g.atoms:
-            return Verdict(None, f"unknown: {g.reason}", latency_s=time.perf_counter() - start)
-        missing = [str(a) for a in g.atoms if str(a) not in scene.facts]
+        if request.task_level:
+            atoms = list(request.goal_atoms)
+        else:
+            names = sorted(set(scene.bodies) | set(scene.sites))
+            g = ground(request.subplan, request.plans, names, request.index)
+            if not g.atoms:
+                return Verdict(None, f"unknown: {g.reason}", latency_s=time.perf_counter() - start)
+            atoms = [str(a) for a in g.atoms]
+        missing = [a for a in atoms if a not in scene.facts]
         if missing:
             return Verdict(None, f"unknown: the end state lacks {', '.join(missing)}",
                            latency_s=time.perf_counter() - start)
-        holds = {str(a): bool(scene.facts[str(a)]) for a in g.atoms}
+        holds = {a: bool(scene.facts[a]) for a in atoms}
         ok = all(holds.values())
         rationale = "; ".join(f"{a} is {'true' if v else 'false'}" for a, v in holds.items())
         return Verdict(ok, rationale, latency_s=time.perf_counter() - start, raw=rationale,
