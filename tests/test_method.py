@@ -27,6 +27,98 @@ def test_config_hashes_of_older_stores_are_kept():
     assert MethodSpec(method="random", k=4, render="fast").config_hash == "259cb3eb85"
 
 
+SHIPPED_VLA = Path(__file__).resolve().parents[1] / "src/seal/policies/vla/checkpoints"
+SHIPPED_VERIFIER = Path(__file__).resolve().parents[1] / "src/seal/verify/checkpoints/learned"
+
+
+def _shipped_digests() -> dict:
+    """The shipped weights' names, computed here independently of the code under test."""
+    import hashlib
+
+    vla = {name: json.loads((SHIPPED_VLA / name / "manifest.json").read_text())["files"]["model.safetensors"]["sha256"][:12]
+           for name in ("reason", "twin")}
+    learned = hashlib.sha1((SHIPPED_VERIFIER / "model.safetensors").read_bytes()
+                           + (SHIPPED_VERIFIER / "config.json").read_bytes()).hexdigest()[:12]
+    return {**vla, "learned": learned}
+
+
+def _fixed_value_checkpoint(tmp_path: Path) -> Path:
+    """A V-GPS checkpoint directory with fixed bytes: only its digest enters a hash, never its weights."""
+    from seal.checkpoint import write_manifest
+
+    d = tmp_path / "vgps"
+    d.mkdir()
+    (d / "value.safetensors").write_bytes(b"not really weights: only their digest is pinned")
+    (d / "value.json").write_text('{"image_size": 56}')
+    write_manifest(d, kind="seal-vgps", files=["value.safetensors", "value.json"])
+    return d
+
+
+def test_config_hashes_of_plugins_are_kept(tmp_path):
+    """Hashes, labels and canonical forms of every plug-in's settings, computed with the code before the
+    plug-ins owned their options (issue 35): stores made then must find their trials now."""
+    # These pins name the shipped weights of today; a retrained shipped checkpoint is a new method (re-pin then).
+    assert _shipped_digests() == {"reason": "009dcdd7fb35", "twin": "14bb7098169e", "learned": "8818a7a2714f"}
+    value = _fixed_value_checkpoint(tmp_path)
+    cases = [  # (spec, config hash, label, canonical form: its keys in this order)
+        (MethodSpec(policy="vla"), "0c35fb9f53", "seal[policy=vla,render=fast,policy_ckpt=009dcdd7fb35]",
+         {"method": "seal", "k": 10, "rounds": 2, "verifier": "oracle", "model": None, "false_positive": 0.0,
+          "false_negative": 0.0, "policy": "vla", "mode": "sync", "render": "fast", "done_check": "verify",
+          "policy_ckpt": "009dcdd7fb35"}),
+        (MethodSpec(method="base", policy="vla"), "767e9bd037", "base[policy=vla,render=fast,policy_ckpt=009dcdd7fb35]",
+         {"method": "base", "policy": "vla", "mode": "sync", "render": "fast", "policy_ckpt": "009dcdd7fb35"}),
+        (MethodSpec(policy="vla:twin"), "ea43916c1f", "seal[policy=vla,render=fast,policy_ckpt=14bb7098169e]", None),
+        (MethodSpec(method="base", policy="vla:twin"), "d1fec96036",
+         "base[policy=vla,render=fast,policy_ckpt=14bb7098169e]", None),
+        (MethodSpec(policy="vla", policy_ckpt="twin", planner="annotations", check_every=40), "1dc4345fc4",
+         "seal[policy=vla,render=fast,check_every=40,planner=annotations,policy_ckpt=14bb7098169e]", None),
+        (MethodSpec(verifier=f"learned:{SHIPPED_VERIFIER}"), "df755dab3f", "seal[verifier=learned,model=8818a7a2714f]",
+         {"method": "seal", "k": 10, "rounds": 2, "verifier": "learned", "model": "8818a7a2714f", "false_positive": 0.0,
+          "false_negative": 0.0, "policy": "scripted", "knobs": "misaligned", "mode": "sync", "render": "stock",
+          "done_check": "verify"}),
+        (MethodSpec(verifier="learned", model=str(SHIPPED_VERIFIER), done_check="trust"), "38151112c4",
+         "seal[verifier=learned,model=8818a7a2714f,done_check=trust]", None),
+        (MethodSpec(method="value", value_ckpt=str(value)), "34e1da3e4d", "value[ckpt=vgps]",
+         {"method": "value", "k": 10, "policy": "scripted", "knobs": "misaligned", "mode": "sync", "render": "stock",
+          "value_ckpt": "bd58b24a6834", "value_goal": "task"}),
+        (MethodSpec(method="value", value_ckpt=str(value / "value.json"), value_goal="subplan", k=4), "73938379e0",
+         "value[ckpt=value.json,k=4,value_goal=subplan]", None),
+        (MethodSpec(policy="remote", planner="annotations", prompt="subplan"), "531977047c",
+         "seal[policy=remote,planner=annotations,prompt=subplan]",
+         {"method": "seal", "k": 10, "rounds": 2, "verifier": "oracle", "model": None, "false_positive": 0.0,
+          "false_negative": 0.0, "policy": "remote", "mode": "sync", "render": "stock", "planner": "annotations",
+          "prompt": "subplan", "done_check": "verify"}),
+        (MethodSpec(policy="remote", planner="vlm", planner_model="gpt-4o", annotations="a.json", prompt="subplan",
+                    port=9000), "ed1ffc1e9d",
+         "seal[policy=remote,planner=vlm,annotations=a.json,planner_model=gpt-4o,prompt=subplan]", None),
+        (MethodSpec(verifier="noisy", false_positive=0.1, false_negative=0.2), "0d77a42d98",
+         "seal[verifier=noisy,false_positive=0.1,false_negative=0.2]", None),
+        (MethodSpec(mismatch=(1.3, 0.8, 1.2)), "d741ef288a", "seal[mismatch=1.3/0.8/1.2]",
+         {"method": "seal", "k": 10, "rounds": 2, "verifier": "oracle", "model": None, "false_positive": 0.0,
+          "false_negative": 0.0, "policy": "scripted", "knobs": "misaligned", "mode": "sync", "render": "stock",
+          "mismatch": [1.3, 0.8, 1.2], "done_check": "verify"}),
+        (MethodSpec(done_check="trust"), "7687d79a15", "seal[done_check=trust]", None),
+        (MethodSpec(k=4, verifier="noisy", false_positive=0.1, mismatch=(1.3, 0.8, 1.2), done_check="trust", pick="best",
+                    verify_order="arrival", subplan_budget=120), "41e0d352c0",
+         "seal[k=4,verifier=noisy,false_positive=0.1,mismatch=1.3/0.8/1.2,subplan_budget=120,pick=best,"
+         "verify_order=arrival,done_check=trust]", None),
+        (MethodSpec(method="random", k=3, render="fast", mode="replay"), "551786a35d", "random[k=3,mode=replay,render=fast]",
+         None),
+    ]
+    for spec, config_hash, label, canonical in cases:
+        assert (spec.config_hash, spec.label) == (config_hash, label), (spec, spec.canonical())
+        if canonical is not None:
+            assert list(spec.canonical().items()) == list(canonical.items())
+    # the same methods written as `seal eval --methods` items
+    (vla, twin, noisy) = parse_methods("seal:policy=vla,base:policy=vla:policy_ckpt=twin,"
+                                       "seal:verifier=noisy:false_positive=0.1:false_negative=0.2")
+    assert [m.config_hash for m in (vla, twin, noisy)] == ["0c35fb9f53", "d1fec96036", "0d77a42d98"]
+    (reason,) = parse_methods("seal:policy=vla:policy_ckpt=reason")  # the shipped default, named
+    assert (reason.config_hash, reason.label) == (vla.config_hash, vla.label)
+    (v,) = parse_methods(f"value:value_ckpt={value}")
+    assert v.config_hash == "34e1da3e4d"
+
+
 def test_new_settings_enter_the_hash_only_when_set():
     plain = MethodSpec()
     assert MethodSpec(check_every=20, subplan_budget=200, mismatch=None).config_hash == plain.config_hash
