@@ -3,7 +3,7 @@ PY ?= python3.11
 VENV := .venv
 BIN := $(VENV)/bin
 
-.PHONY: install install-chromium run test test-slow
+.PHONY: install install-chromium run test test-slow pin
 
 $(BIN)/seal: pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -37,3 +37,12 @@ test: install
 # ~7 min (410 s) on the 2-core development machine (docs/performance.md, "Slow tests").
 test-slow: install
 	$(BIN)/python -m pytest -q -m slow
+
+# Long jobs (training, DAgger rounds, 50-trial evaluations) run a pinned copy of the code: a worktree
+# of HEAD under ../runs/code/<commit>, put first on the path by the printed PYTHONPATH. Work on this
+# checkout then cannot change what a running job imports halfway through (docs/dagger.md).
+RUNS ?= ../runs
+pin:
+	@sha=$$(git rev-parse --short HEAD); dir=$(RUNS)/code/$$sha; \
+	  [ -d $$dir ] || git worktree add --detach $$dir HEAD >/dev/null 2>&1 || { echo "error: could not make $$dir" >&2; exit 1; }; \
+	  echo "export PYTHONPATH=$$(cd $$dir && pwd)/src"
