@@ -14,14 +14,14 @@ from openpi_client import msgpack_numpy
 from seal.cli import main
 from seal.errors import InvalidInput
 from seal.policies import make_policy
-from seal.policies.base import Reasoning
+from seal.policies.base import Reasoning, parse_reasoning
+from seal.policies.planners import AnnotationPlanner
 from seal.policies.vla.checkpoint import save_checkpoint
 from seal.policies.vla.model import VLAConfig, VLAModel
 from seal.policies.vla.policy import VLAPolicy
 from seal.policies.vla.tokenizer import VLATokenizer, project_texts, train_tokenizer
 from seal.serving import protocol as P
 from seal.serving.client import ClientConfig, OpenpiPolicy, _Lane
-from seal.serving.planners import AnnotationPlanner
 from seal.serving.server import PolicyServer, ServerProcess, ServerThread, vla_factory, vla_info
 from seal.sim.observation import Observation
 from seal.sim.suites import get_task
@@ -86,7 +86,7 @@ def test_seal_serve_vla_process_answers_the_remote_client_like_the_policy_in_pro
             assert policy.image_size == SIZE  # the steering loop renders the cameras at the model's size
             policy.reset(BOOK.instruction, seed=3)
             reasoning = policy.reason(big)  # parsed from the reply's text (strict parser)
-            assert reasoning == want_r and P.parse_reasoning(reasoning.text()) == reasoning
+            assert reasoning == want_r and parse_reasoning(reasoning.text()) == reasoning
             policy.begin(k)
             chunks = policy.act([big] * k, reasoning)
             got = _chunks(chunks)

@@ -20,11 +20,11 @@ from websockets.exceptions import ConnectionClosed
 from openpi_client import msgpack_numpy
 
 from seal.errors import InvalidInput
-from seal.policies.base import Reasoning
+from seal.policies.base import Reasoning, parse_reasoning
 from seal.policies.expert.policy import FailureKnobs
+from seal.policies.planners import AnnotationPlanner, PlannerError, VLMPlanner, parse_plan_answer
 from seal.serving import protocol as P
 from seal.serving.client import ClientConfig, OpenpiPolicy, _Lane
-from seal.serving.planners import AnnotationPlanner, PlannerError, VLMPlanner, parse_plan_answer
 from seal.serving.server import PolicyServer, ServerProcess, ServerThread, scripted_factory, scripted_info
 from seal.sim.pool import EnvPool
 from seal.sim.suites import get_task
@@ -65,13 +65,17 @@ def test_reasoning_text_round_trips_for_every_libero10_plan():
         plans = tuple(p.text for p in plan_task(get_task("libero_10", i)))
         for j in range(len(plans) + 1):
             r = Reasoning(plans, plans[:j], plans[j] if j < len(plans) else "")
-            assert P.parse_reasoning(r.text()) == r
+            assert parse_reasoning(r.text()) == r
+    with pytest.raises(InvalidInput, match="three lines"):
+        parse_reasoning("pick up the book")
+    with pytest.raises(InvalidInput, match="not one of the plans"):
+        parse_reasoning("Plans: 1. a. 2. b.\nWhat has been done: c.\nNow I need to do: b.")
+    with pytest.raises(InvalidInput, match="must be a string, got int"):
+        parse_reasoning(3)
+    # on the wire, a text that does not parse is the peer's protocol error
+    assert P.read_reasoning(r.text()) == r
     with pytest.raises(P.ProtocolError, match="three lines"):
-        P.parse_reasoning("pick up the book")
-    with pytest.raises(P.ProtocolError, match="not one of the plans"):
-        P.parse_reasoning("Plans: 1. a. 2. b.\nWhat has been done: c.\nNow I need to do: b.")
-    with pytest.raises(P.ProtocolError, match="must be a string, got int"):
-        P.parse_reasoning(3)
+        P.read_reasoning("pick up the book")
 
 
 def test_privileged_scene_survives_the_wire(obs):
@@ -151,7 +155,7 @@ def test_openpi_reference_client_talks_to_seal_serve(obs):
         req = P.observation_request(obs, info=P.ServerInfo(privileged=True))
         reply = client.infer(req)
         assert reply["actions"].shape == (16, 7) and reply["think"] is False
-        assert P.parse_reasoning(reply["reasoning"]).now == "pick up the book"
+        assert P.read_reasoning(reply["reasoning"]).now == "pick up the book"
         client._ws.close()
 
 

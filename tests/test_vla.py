@@ -19,13 +19,12 @@ from seal.cli import main
 from seal.demos import start_seed
 from seal.errors import InvalidInput
 from seal.policies import make_policy
-from seal.policies.base import Reasoning
+from seal.policies.base import Reasoning, parse_reasoning
 from seal.policies.vla.checkpoint import export_checkpoint, load_checkpoint, save_checkpoint
 from seal.policies.vla.locate import trained_render
 from seal.policies.vla.model import VLAConfig, VLAModel
 from seal.policies.vla.policy import VLAPolicy
 from seal.policies.vla.tokenizer import SPECIALS, VLATokenizer, project_texts, train_tokenizer
-from seal.serving.protocol import parse_reasoning
 from seal.sim.observation import Observation
 from seal.steer.method import MethodSpec
 from seal.train.vla import TrainConfig, synthetic_batch, train_vla

@@ -256,7 +256,7 @@ def on_policy_figures(rows: list[dict], final_done=()) -> dict:
     boundaries where its sub-plan is the one the expert says is next) and ``alignment`` (share of
     the sub-plans it acted on, each span of one text, that were done when it moved on or stopped;
     ``final_done``: the sub-plans the expert counts as done where the episode ended)."""
-    from seal.serving.protocol import parse_reasoning
+    from seal.policies.base import parse_reasoning
 
     if not rows:
         return {"subplan_accuracy": None, "alignment": None, "committed": 0}

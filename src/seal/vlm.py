@@ -1,6 +1,6 @@
 """The client side of every vision-language-model call SEAL makes: the VLM verifier
 (`seal.verify.vlm`), the reasoning annotator (`seal.annotate.backends`) and the VLM planner
-(`seal.serving.planners`) share it, so all three guard keys, check SDKs, classify retries,
+(`seal.policies.planners`) share it, so all three guard keys, check SDKs, classify retries,
 cache answers, price calls and encode images the same way.
 
 Keys come from the environment (or an explicit argument) and are never stored outside the SDK

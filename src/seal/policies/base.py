@@ -18,11 +18,13 @@ external planner, `seal.serving`): the steering loop then lets the verifier end 
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
-from typing import Protocol, Sequence
+from typing import Any, Protocol, Sequence
 
 import numpy as np
 
+from seal.errors import InvalidInput
 from seal.sim.observation import Observation
 
 PREDICT_HORIZON = 16  # actions predicted per chunk
@@ -59,6 +61,64 @@ class Reasoning:
         done = " ".join(f"{p}." for p in self.done) if self.done else "nothing yet."
         now = f"{self.now}." if self.now else "the task is complete."
         return f"Plans: {plans}\nWhat has been done: {done}\nNow I need to do: {now}"
+
+
+_SECTIONS = re.compile(r"^Plans:(?P<plans>.*)\nWhat has been done:(?P<done>.*)\nNow I need to do:(?P<now>.*)$", re.S)
+_ITEM = re.compile(r"(\d+)\.\s(.*?)\.(?=\s\d+\.\s|\s*$)", re.S)
+
+
+def parse_reasoning(text: Any) -> Reasoning:
+    """The inverse of `Reasoning.text()`:
+
+        Plans: 1. pick up the book. 2. place it in the back compartment of the caddy.
+        What has been done: pick up the book.
+        Now I need to do: place it in the back compartment of the caddy.
+
+    "nothing yet." means no sub-plan is done; "the task is complete." means nothing is left.
+    Anything else is an `InvalidInput` that says what is wrong (`seal.serving.protocol` turns it
+    into a protocol error when the text came over the wire).
+    """
+    if not isinstance(text, str):
+        raise InvalidInput(f"'reasoning' must be a string, got {type(text).__name__}")
+    m = _SECTIONS.match(text.strip())
+    if m is None:
+        raise InvalidInput("'reasoning' must have three lines 'Plans: 1. ... 2. ...', 'What has been done: ...', "
+                           f"'Now I need to do: ...'; got {text[:200]!r}")
+    items = _ITEM.findall(m["plans"].strip())
+    plans = tuple(t.strip() for _, t in items)
+    if not plans or [int(i) for i, _ in items] != list(range(1, len(plans) + 1)):
+        raise InvalidInput(f"'reasoning' plans must be numbered '1. ... 2. ...', got {m['plans'].strip()!r}")
+    done_text = m["done"].strip()
+    done: list[str] = []
+    if done_text != "nothing yet.":
+        rest = done_text
+        while rest:  # done items are plan texts, each followed by "."; match the longest first
+            hit = next((p for p in sorted(plans, key=len, reverse=True) if rest.startswith(p + ".")), None)
+            if hit is None:
+                raise InvalidInput(f"'reasoning' lists as done {rest!r}, which is not one of the plans {list(plans)}")
+            done.append(hit)
+            rest = rest[len(hit) + 1 :].strip()
+    now = m["now"].strip()
+    now = "" if now == "the task is complete." else now.removesuffix(".")
+    return Reasoning(plans=plans, done=tuple(done), now=now)
+
+
+def parse_lenient(text: str, instruction: str) -> Reasoning:
+    """The three fields of a generated reasoning text; as much of them as can be read."""
+    try:
+        return parse_reasoning(text)
+    except InvalidInput:
+        pass
+    now = re.search(r"Now I need to do:(.*)", text, re.S)
+    now_text = now[1].strip().removesuffix(".").strip() if now else ""
+    if now_text == "the task is complete":
+        now_text = ""
+    plans = tuple(p.strip() for p in re.findall(r"\d+\.\s([^.\n]+)\.", text.split("What has been done:")[0]))
+    if not now_text and not plans:
+        return Reasoning(plans=(instruction,), done=(), now=instruction)
+    if now_text and now_text not in plans:
+        plans = (*plans, now_text)
+    return Reasoning(plans=plans or (instruction,), done=(), now=now_text)
 
 
 @dataclass

@@ -16,7 +16,7 @@ naming expected vs got). K candidates are K observations, sent
 ``auto`` takes batched when offered, else concurrent (``seal bench serve`` measures all three).
 
 A server that does not reason (plain pi0) gets its sub-plans from a `Planner`
-(`seal.serving.planners`), and the engine ends its sub-plans on the step budget or when the
+(`seal.policies.planners`), and the engine ends its sub-plans on the step budget or when the
 verifier accepts (``thinks = False``).
 """
 
@@ -229,7 +229,7 @@ class OpenpiPolicy:
         req = self._tag(P.observation_request(obs, info=self.info), row=0)
         reply = P.parse_reply(self._lanes[0].call(req), None, want_reasoning=True)[0]
         self.requests += 1
-        self._reasoning = P.parse_reasoning(reply.reasoning)
+        self._reasoning = P.read_reasoning(reply.reasoning)
         return self._reasoning
 
     def begin(self, k: int) -> None:
@@ -331,7 +331,7 @@ class OpenpiPolicy:
 def remote_policy(spec, task, *, seed: int = 0) -> OpenpiPolicy:
     """`seal.policies.make_policy`'s ``remote`` entry: a server at ``spec.host:spec.port``, plus a
     planner (``spec.planner``) when it does not reason. ``seed`` goes to the server at ``reset``."""
-    from seal.serving.planners import make_planner
+    from seal.policies.planners import make_planner
 
     planner = None if not spec.planner else make_planner(spec.planner, spec=task, annotations=spec.annotations,
                                                          model=spec.planner_model, base_url=spec.base_url)

@@ -21,14 +21,13 @@ Every check here names the key, what was expected and what came.
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
 
 from seal.errors import InvalidInput, SealError
-from seal.policies.base import ACTION_HORIZON, PREDICT_HORIZON, Reasoning
+from seal.policies.base import ACTION_HORIZON, PREDICT_HORIZON, Reasoning, parse_reasoning
 from seal.sim.observation import IMAGE_SIZE, Observation
 from seal.sim.scene import Articulation, Body, Box, SceneState, Site
 
@@ -119,42 +118,14 @@ def request_limit(max_batch: int, image_size: int = IMAGE_SIZE) -> int:
 
 # ---------------------------------------------------------------------------- reasoning text
 
-_SECTIONS = re.compile(r"^Plans:(?P<plans>.*)\nWhat has been done:(?P<done>.*)\nNow I need to do:(?P<now>.*)$", re.S)
-_ITEM = re.compile(r"(\d+)\.\s(.*?)\.(?=\s\d+\.\s|\s*$)", re.S)
 
-
-def parse_reasoning(text: Any) -> Reasoning:
-    """The inverse of `Reasoning.text()`:
-
-        Plans: 1. pick up the book. 2. place it in the back compartment of the caddy.
-        What has been done: pick up the book.
-        Now I need to do: place it in the back compartment of the caddy.
-
-    "nothing yet." means no sub-plan is done; "the task is complete." means nothing is left.
-    """
-    if not isinstance(text, str):
-        raise ProtocolError(f"'reasoning' must be a string, got {type(text).__name__}")
-    m = _SECTIONS.match(text.strip())
-    if m is None:
-        raise ProtocolError("'reasoning' must have three lines 'Plans: 1. ... 2. ...', 'What has been done: ...', "
-                            f"'Now I need to do: ...'; got {text[:200]!r}")
-    items = _ITEM.findall(m["plans"].strip())
-    plans = tuple(t.strip() for _, t in items)
-    if not plans or [int(i) for i, _ in items] != list(range(1, len(plans) + 1)):
-        raise ProtocolError(f"'reasoning' plans must be numbered '1. ... 2. ...', got {m['plans'].strip()!r}")
-    done_text = m["done"].strip()
-    done: list[str] = []
-    if done_text != "nothing yet.":
-        rest = done_text
-        while rest:  # done items are plan texts, each followed by "."; match the longest first
-            hit = next((p for p in sorted(plans, key=len, reverse=True) if rest.startswith(p + ".")), None)
-            if hit is None:
-                raise ProtocolError(f"'reasoning' lists as done {rest!r}, which is not one of the plans {list(plans)}")
-            done.append(hit)
-            rest = rest[len(hit) + 1 :].strip()
-    now = m["now"].strip()
-    now = "" if now == "the task is complete." else now.removesuffix(".")
-    return Reasoning(plans=plans, done=tuple(done), now=now)
+def read_reasoning(text: Any) -> Reasoning:
+    """A request's or reply's ``reasoning``: the three-field text `seal.policies.base.parse_reasoning`
+    reads (the inverse of `Reasoning.text()`); one it cannot read is a `ProtocolError`."""
+    try:
+        return parse_reasoning(text)
+    except InvalidInput as exc:
+        raise ProtocolError(str(exc)) from None
 
 
 # ---------------------------------------------------------------------------- privileged scene

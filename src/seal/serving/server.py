@@ -241,7 +241,7 @@ class PolicyServer:
         n = req.get(P.BATCH)
         rows = P.request_rows(req, n)
         given = req.get(P.REASONING) if self.info.reasoning else None
-        reasoning = P.parse_reasoning(given) if given is not None else None
+        reasoning = P.read_reasoning(given) if given is not None else None
         if reasoning is None and n is not None and _thinks(session.policy):
             raise P.ProtocolError(f"a batched request ({P.BATCH!r}) must carry 'reasoning' to act on")
         async with session.lock:

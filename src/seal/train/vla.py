@@ -253,7 +253,7 @@ def _frame_labels(cache: FrameCache, records: dict[int, dict], root: Path | None
     """Labels of DAgger episodes: the teacher's text and chunk at every frame; a think sample (the
     policy's own, stale text -> think) wherever the policy's sub-plan was not the teacher's."""
     from seal.dagger import read_frame_labels
-    from seal.serving.protocol import parse_reasoning
+    from seal.policies.base import parse_reasoning
 
     if root is None:
         raise InvalidInput("DAgger labels need the annotation directory they live in")
@@ -798,7 +798,8 @@ def evaluate(model: VLAModel, tok: VLATokenizer, batcher: Batcher, frames: list[
     """Held-out figures at chunk starts ``frames``: action MSE of one sampled chunk (fixed noise)
     against the recorded chunk on its valid steps, in the env's action units, and the share of
     greedy-decoded reasoning texts whose "Now I need to do" matches the label."""
-    from seal.policies.vla.policy import VLAPolicy, parse_lenient
+    from seal.policies.base import parse_lenient, parse_reasoning
+    from seal.policies.vla.policy import VLAPolicy
     from seal.sim.observation import Observation
 
     model.eval()
@@ -812,8 +813,6 @@ def evaluate(model: VLAModel, tok: VLATokenizer, batcher: Batcher, frames: list[
                           wrist=np.asarray(cache.wrist[f]))
         text = labels.texts[labels.reason[f]]
         if model.cfg.reasoning:
-            from seal.serving.protocol import parse_reasoning
-
             now = parse_lenient(policy.decode(policy.encode([obs])), instruction).now
             match += now == labels.now[labels.reason[f]]
             cond = policy.condition([obs], parse_reasoning(text))

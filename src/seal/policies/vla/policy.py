@@ -31,41 +31,20 @@ which is what pi0 is asked to do. The twin is prompted with the instruction, as 
 
 from __future__ import annotations
 
-import re
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from seal.errors import InvalidInput, PolicyError, SealError
-from seal.policies.base import PREDICT_HORIZON, ActionChunk, Reasoning
+from seal.errors import InvalidInput, PolicyError
+from seal.policies.base import PREDICT_HORIZON, ActionChunk, Reasoning, parse_lenient
 from seal.policies.vla.checkpoint import load_checkpoint
 from seal.policies.vla.locate import resolve_checkpoint
 from seal.policies.vla.model import ACTION_DIM, VLAModel
 from seal.policies.vla.preprocess import instruction_ids, reasoning_ids, resize_images
 from seal.policies.vla.tokenizer import VLATokenizer
 from seal.sim.observation import Observation
-
-
-def parse_lenient(text: str, instruction: str) -> Reasoning:
-    """The three fields of a generated reasoning text; as much of them as can be read."""
-    from seal.serving.protocol import parse_reasoning
-
-    try:
-        return parse_reasoning(text)
-    except SealError:
-        pass
-    now = re.search(r"Now I need to do:(.*)", text, re.S)
-    now_text = now[1].strip().removesuffix(".").strip() if now else ""
-    if now_text == "the task is complete":
-        now_text = ""
-    plans = tuple(p.strip() for p in re.findall(r"\d+\.\s([^.\n]+)\.", text.split("What has been done:")[0]))
-    if not now_text and not plans:
-        return Reasoning(plans=(instruction,), done=(), now=instruction)
-    if now_text and now_text not in plans:
-        plans = (*plans, now_text)
-    return Reasoning(plans=plans or (instruction,), done=(), now=now_text)
 
 
 class VLAPolicy:
@@ -239,7 +218,7 @@ def vla_policy(spec, task, *, seed: int = 0) -> VLAPolicy:
     method's planner when one is set."""
     planner = None
     if spec.planner:
-        from seal.serving.planners import make_planner
+        from seal.policies.planners import make_planner
 
         planner = make_planner(spec.planner, spec=task, annotations=spec.annotations, model=spec.planner_model,
                                base_url=spec.base_url)
