@@ -9,7 +9,8 @@ import pytest
 
 from seal.errors import InvalidInput
 from seal.policies.expert.plan import plan_task
-from seal.sim.generate import bddl_texts, check_state, draw_state, is_current, needs_generated_states, stored_seeds
+from seal.sim.generate import bddl_texts, is_current, needs_generated_states, stored_seeds
+from seal.sim.start_check import check_state
 from seal.sim.suites import DERIVED_SUITES, SUITES, get_task, instructions, list_tasks, task_count
 from seal.sim.variants import COMPOSITION, VISUAL_SCENE, Replace
 from seal.sim.world import LiberoWorld
@@ -123,7 +124,7 @@ def test_composition_init_states_are_redrawn_bit_for_bit_from_their_seeds(compos
     states = spec.init_states()
     seeds, _ = stored_seeds(spec)
     for j in (0, 49):
-        np.testing.assert_array_equal(draw_state(composition_world, int(seeds[j])), states[j])
+        np.testing.assert_array_equal(composition_world.draw_state(int(seeds[j])), states[j])
     assert check_state(composition_world, states[0]) == ""
     # A draw leaves the world usable: the stored start still loads and renders the same.
     composition_world.reset(0)

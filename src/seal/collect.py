@@ -146,6 +146,7 @@ def fresh_init_states(task, source: str, n: int, root: Path, progress: Callable 
     drawn once and kept under ``root/init_states``. Draws are deterministic, so state j is the
     same whatever ``n`` is."""
     from seal.sim import generate
+    from seal.sim.start_check import check_state
     from seal.sim.world import LiberoWorld
 
     path = Path(root) / "init_states" / f"{task.suite}-{task.task_id:03d}-{source}-{n}.npz"
@@ -157,8 +158,8 @@ def fresh_init_states(task, source: str, n: int, root: Path, progress: Callable 
             while len(states) < n:
                 if seed - first >= generate.MAX_DRAWS + n:
                     raise InvalidInput(f"{task.key}: only {len(states)} usable fresh init states in {seed - first} draws")
-                state = generate.draw_state(world, seed)
-                if state is not None and not generate.check_state(world, state):
+                state = world.draw_state(seed)
+                if state is not None and not check_state(world, state):
                     states.append(state)
                     seeds.append(seed)
                     if progress is not None:

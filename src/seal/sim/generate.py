@@ -5,7 +5,7 @@ Init states are drawn the way LIBERO drew its own: the problem's placement sampl
 object in its init region (``env.reset()``), and the flattened MuJoCo state is kept. Each draw
 is seeded (LIBERO's samplers use NumPy's global generator, which we seed and restore around
 the draw), so a stored state can be re-drawn bit for bit from its seed. A draw is kept only
-if the scene is at rest and sane after the settle steps; see `check_state`.
+if the scene is at rest and sane after the settle steps (`seal.sim.start_check`).
 
 Stored file: ``seal/data/init_states/<suite>/<problem>.npz`` with ``states`` (n, 1+nq+nv),
 ``seeds`` (n,) and ``bddl_sha256`` of the problem file the states belong to.
@@ -23,27 +23,19 @@ from pathlib import Path
 import numpy as np
 
 from seal.errors import InvalidInput, SimulationError
-from seal.sim.layout import NumpyGlobalRNG
+from seal.sim.start_check import check_state
 from seal.sim.suites import (
     DERIVED_SUITES,
     TaskSpec,
-    _libero_task,
     get_task,
     instructions,
+    libero_task,
     shipped_bddl_path,
     task_count,
 )
 from seal.sim.variants import COMPOSITION, VISUAL_SCENE, ProVariant, Replace, compose, replace_object
 
 N_INIT_STATES = 50
-# No-op steps after the settle steps; the second half must be still. LIBERO's own starts are not
-# all at rest after the settle steps: in the LIVING_ROOM_SCENE2 tasks the ketchup spawns
-# overlapping the table and is thrown ~60 cm up, landing ~0.6 s later - for every init state,
-# official or ours, since the spawn height is LIBERO's. We accept that, as LIBERO-10 does.
-REST_STEPS = 40
-MAX_SLIDE = 0.02  # metres an object may move sideways while settling
-MAX_DROP = 0.10  # metres an object may sink while settling (LIBERO spawns some up to ~7 cm above the table)
-MAX_MOTION = 0.005  # metres an object may still move during the rest steps
 MAX_DRAWS = 400  # give up on a task if this many draws do not yield the states asked for
 
 
@@ -54,11 +46,11 @@ def bddl_texts(suite: str) -> dict[Path, str]:
     if suite == "visual_scene":
         for task_id, edit in VISUAL_SCENE.items():
             if isinstance(edit, Replace):
-                base = _libero_task("libero_10", task_id)
+                base = libero_task("libero_10", task_id)
                 out[shipped_bddl_path(suite, base.name)] = replace_object(base.bddl_path.read_text(), edit)
     elif suite == "composition":
         for task_id, task in enumerate(COMPOSITION):
-            base = _libero_task("libero_10", task.base_task)
+            base = libero_task("libero_10", task.base_task)
             spec = get_task(suite, task_id)
             out[spec.bddl_path] = compose(base.bddl_path.read_text(), task, instructions()[(suite, task_id)])
     return out
@@ -97,79 +89,6 @@ def task_seed(spec: TaskSpec) -> int:
     return zlib.crc32(spec.key.encode()) * 1000
 
 
-def draw_state(world, seed: int) -> np.ndarray | None:
-    """LIBERO's placement of every object for ``seed``, as a flattened MuJoCo state (None when
-    the sampler finds no collision-free placement)."""
-    from robosuite.utils.errors import RandomizationError
-
-    env, model = world._env, world.model
-    # The sampler also moves fixtures (cabinets, racks) - in the *model*, which no state vector
-    # carries. Every world keeps the fixture poses of its build, so put them back after the draw.
-    body_pos, body_quat = model.body_pos.copy(), model.body_quat.copy()
-    try:
-        with NumpyGlobalRNG(seed % 2**32):
-            env.reset()
-        return np.array(env.sim.get_state().flatten(), dtype=np.float64)
-    except RandomizationError:
-        return None
-    finally:
-        model.body_pos[:], model.body_quat[:] = body_pos, body_quat
-
-
-def check_state(world, state: np.ndarray) -> str:
-    """'' if ``state`` is a usable start, else why not.
-
-    Usable: the physics stays stable; from the spawn pose to the end of the settle steps and
-    `REST_STEPS` more, no object slid more than `MAX_SLIDE` or sank more than `MAX_DROP`
-    (nothing toppled off, fell off or was pushed out of an overlap; LIBERO spawns some objects
-    a few cm above the table, so a short drop is normal), and nothing still moves during the
-    second half of the rest steps; the BDDL's unary init facts hold (a drawer left open, a stove on); and the task
-    is not already done.
-    """
-    from seal.sim.world import SETTLE_ACTION
-
-    try:
-        world.reset_to_state(state, settle=False)
-        names = world.scene_objects
-        spawn = np.array([world.object_position(n) for n in names])
-        world.reset_to_state(state, settle=True)
-        for _ in range(REST_STEPS // 2):
-            world._physics_step(SETTLE_ACTION)
-        settled = np.array([world.object_position(n) for n in names])
-        for _ in range(REST_STEPS - REST_STEPS // 2):
-            world._physics_step(SETTLE_ACTION)
-    except SimulationError as exc:
-        return f"unstable: {exc}"
-    unplaced = [n for n, p in zip(names, spawn) if np.linalg.norm(p) < 1e-6]
-    if unplaced:  # LIBERO leaves an object at the origin when its init region does not exist
-        return f"not placed by the sampler: {', '.join(unplaced)}"
-    rest = np.array([world.object_position(n) for n in names])
-    slide = np.linalg.norm(rest[:, :2] - spawn[:, :2], axis=1)
-    drop = spawn[:, 2] - rest[:, 2]
-    moving = np.linalg.norm(rest - settled, axis=1)
-    for n, s, d, m in zip(names, slide, drop, moving):
-        if s > MAX_SLIDE:
-            return f"{n} slid {s * 100:.1f} cm while settling"
-        if d > MAX_DROP:
-            return f"{n} sank {d * 100:.1f} cm while settling"
-        if m > MAX_MOTION:
-            return f"{n} still moves after the settle steps ({m * 1000:.0f} mm)"
-    for atom in _unary_init_facts(world.task):
-        if not world.check(atom):
-            return f"init fact {atom} does not hold"
-    if world.success():
-        return "task already done"
-    return ""
-
-
-def _unary_init_facts(spec: TaskSpec) -> list[str]:
-    import re
-
-    text = spec.bddl_path.read_text()
-    init = text[text.index("(:init") : text.index("(:goal")]
-    return [f"{p}({a})" for p, a in re.findall(r"\((Open|Close|Turnon|Turnoff)\s+(\w+)\)", init, flags=re.I)]
-
-
 @dataclass
 class Generated:
     states: np.ndarray
@@ -190,7 +109,7 @@ def generate_init_states(spec: TaskSpec, n: int = N_INIT_STATES, *, world=None, 
             if len(states) + len(rejected) >= MAX_DRAWS:
                 raise SimulationError(f"{spec.key}: only {len(states)} usable init states in {MAX_DRAWS} draws; "
                                       f"last rejection: {list(rejected.values())[-1]}")
-            state = draw_state(world, seed)
+            state = world.draw_state(seed)
             reason = "no collision-free placement" if state is None else check_state(world, state)
             if reason:
                 rejected[seed] = reason

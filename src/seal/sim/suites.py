@@ -154,7 +154,7 @@ def get_task(suite: str, task_id: int) -> TaskSpec:
         raise InvalidInput(f"unknown task id {task_id!r} for suite {suite!r}; valid ids: 0..{n - 1}")
     task_id = int(task_id)
     if suite in LIBERO_SUITES:
-        return _libero_task(suite, task_id)
+        return libero_task(suite, task_id)
     return _DERIVED[suite](task_id)
 
 
@@ -162,7 +162,8 @@ def list_tasks(suite: str) -> list[TaskSpec]:
     return [get_task(suite, i) for i in range(task_count(suite))]
 
 
-def _libero_task(suite: str, task_id: int) -> TaskSpec:
+def libero_task(suite: str, task_id: int) -> TaskSpec:
+    """A task of one of LIBERO's own suites (the derived suites start from LIBERO-10's)."""
     name = _task_names(suite)[task_id]
     root = _libero_root()
     bddl = root / "bddl_files" / suite / f"{name}.bddl"
@@ -186,7 +187,7 @@ def stored_init_states_path(suite: str, name: str) -> Path:
 
 
 def _derived(suite: str, task_id: int, **changes) -> TaskSpec:
-    base = _libero_task("libero_10", task_id)
+    base = libero_task("libero_10", task_id)
     return replace(base, suite=suite, max_steps=MAX_STEPS[suite], base_key=base.key, **changes)
 
 
@@ -198,7 +199,7 @@ def _language(suite: str, what: str):
 
 
 def _visual_scene(task_id: int) -> TaskSpec:
-    base = _libero_task("libero_10", task_id)
+    base = libero_task("libero_10", task_id)
     edit = VISUAL_SCENE[task_id]
     if isinstance(edit, ProVariant):
         rest = base.name[len(base.scene) + 1 :]
@@ -212,7 +213,7 @@ def _visual_scene(task_id: int) -> TaskSpec:
 
 
 def _visual_viewpoint(task_id: int) -> TaskSpec:
-    base = _libero_task("libero_10", task_id)
+    base = libero_task("libero_10", task_id)
     view = VIEWPOINT[task_id]
     if view.background == base.room:
         raise InvalidInput(f"visual_viewpoint/{task_id}: background {view.background} is the task's own room")
@@ -222,7 +223,7 @@ def _visual_viewpoint(task_id: int) -> TaskSpec:
 
 def _composition(task_id: int) -> TaskSpec:
     task = COMPOSITION[task_id]
-    base = _libero_task("libero_10", task.base_task)
+    base = libero_task("libero_10", task.base_task)
     instruction = instructions()[("composition", task_id)]
     name = problem_file_name(base.scene, instruction)
     return TaskSpec(

@@ -32,6 +32,7 @@ from seal.sim import background, layout
 from seal.sim.render import RENDER_MODES, SceneRenderer
 from seal.sim.scene import SceneReader, SceneState
 from seal.sim.snapshot import Snapshot
+from seal.sim.start_check import check_state
 from seal.sim.suites import TaskSpec, get_task
 from seal.sim.view import ViewClock
 
@@ -194,8 +195,6 @@ class LiberoWorld:
         """Start an episode no evaluation uses: objects and fixtures placed by LIBERO's samplers
         with ``seed`` (`seal.sim.layout.draw_start`); a draw the sampler cannot place, that is
         unstable or already solves the task is skipped for the next seed. Returns the seed used."""
-        from seal.sim.generate import check_state
-
         for attempt in range(max_draws):
             drawn = layout.draw_start(self._env, seed + attempt)
             if drawn is None:
@@ -236,9 +235,34 @@ class LiberoWorld:
             controller.reset_goal()
         self._view.restart()
         if settle:
-            for _ in range(SETTLE_STEPS):
-                self._physics_step(SETTLE_ACTION)
+            self.settle()
         self._steps = 0
+
+    def settle(self, steps: int = SETTLE_STEPS) -> None:
+        """``steps`` no-op control steps (hold still, gripper open) that no episode counts: what
+        `reset` does after loading a state, and what `seal.sim.start_check` watches objects over."""
+        for _ in range(steps):
+            self._physics_step(SETTLE_ACTION)
+
+    def draw_state(self, seed: int) -> np.ndarray | None:
+        """LIBERO's placement of every object for ``seed``, as a flattened MuJoCo state (None when
+        the sampler finds no collision-free placement): the problem's placement samplers on NumPy's
+        global generator, seeded and restored around the draw (`seal.sim.generate` stores such
+        states with their seeds). Load the state with `reset_to_state` before stepping."""
+        from robosuite.utils.errors import RandomizationError
+
+        env, model = self._env, self.model
+        # The sampler also moves fixtures (cabinets, racks) - in the *model*, which no state vector
+        # carries. Every world keeps the fixture poses of its build, so put them back after the draw.
+        body_pos, body_quat = model.body_pos.copy(), model.body_quat.copy()
+        try:
+            with layout.NumpyGlobalRNG(seed % 2**32):
+                env.reset()
+            return np.array(env.sim.get_state().flatten(), dtype=np.float64)
+        except RandomizationError:
+            return None
+        finally:
+            model.body_pos[:], model.body_quat[:] = body_pos, body_quat
 
     def step(self, action: np.ndarray) -> StepResult:
         """One 20 Hz control step with a 7-d delta end-effector action in [-1, 1]."""
