@@ -9,6 +9,7 @@ from openpi_client import msgpack_numpy
 
 from seal.episode import run_policy_episode
 from seal.policies.expert import lay, skills
+from seal.policies.expert.motion import horizontal_frame
 from seal.policies.expert.policy import FailureKnobs, ScriptedExpert
 from seal.serving import protocol as P
 from seal.sim.world import LiberoWorld
@@ -26,7 +27,7 @@ def test_ketchup_is_gripped_at_its_cap_not_its_body(drawer_world):
     s = drawer_world.scene_state()
     body = s.bodies[KETCHUP]
     assert len(body.parts) > 3  # the bottle's collision boxes, one by one
-    yaw0, ext = skills._horizontal_frame(body)
+    yaw0, ext = horizontal_frame(body)
     # Its own frame stands along local y: the horizontal sides are ~3.4 and ~5.6 cm, not the height.
     assert np.all(ext < 0.07) and body.size[2] > 0.13
     assert skills.is_tall(body)

@@ -34,23 +34,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from seal.policies.expert.skills import CLOSE, OPEN, OPEN_WIDTH, POS_GAIN, YAW_GAIN, Step, _finger_yaw
+from seal.policies.expert.motion import (DOWN, UP, act, act_pose, flat, hand_tilt, joint_of, misalign, open_sign, openness, pose_error,
+                                         unit, wrist_side, yaw_toward)
+from seal.policies.expert.skills import CLOSE, OPEN, OPEN_WIDTH, Step
 from seal.sim.goals import GoalAtom
 from seal.sim.scene import Articulation, Box, SceneState
 
 # Gripper geometry (Panda, measured in the eef site's frame).
 FINGER_HALF = 0.012  # half thickness of the closed fingers across the finger axis (+ margin)
 HAND_ABOVE_EEF = 0.026  # the hand's underside sits this far above the end-effector site
-WRIST_MID_YAW = 2.6  # finger-axis yaw with the wrist's last joint mid-range, arm at rest (measured)
 AWAY = np.array([1.0, 0.0, 0.0])  # away from the robot's base (LIBERO: the arm stands at -x)
-WRIST_SAFE = 2.2  # the wrist's last joint (stops at +-2.9) is kept within this while turning
 ELBOW_LOCKED = -0.35  # Panda joint 4 above this (stop at -0.07): the arm is nearly straight
 UNLOCK_LEAN = 0.6  # radians to lean the fingers toward the robot to bend a straight elbow
 
 # Motion.
 CLEARANCE = 0.06  # how far the gripper backs away from a fixture before a skill is done
 PUSH_SPEED = 0.6  # action cap while pushing or pulling (~7 mm/step): firm, not violent
-TILT_GAIN = 1.5  # rotation action per radian of roll/pitch error
 YAW_TOL = 0.15  # finger-axis alignment needed before going down next to a fixture
 UPRIGHT_TOL = 0.1  # radians of tilt still counted as pointing straight down
 
@@ -87,20 +86,8 @@ KNOB_GRIP_DEPTH = 0.02  # eef this far below the ridge's top: pads on the ridge,
 KNOB_LEAD = 0.4  # radians the wrist runs ahead of the knob while twisting
 KNOB_ON_AT = 0.5  # LIBERO's stove is on from qpos 0.5
 
-UP = np.array([0.0, 0.0, 1.0])
-DOWN = -UP
 
-
-# ---- geometry ----------------------------------------------------------------------------
-def _unit(v: np.ndarray) -> np.ndarray:
-    return v / (np.linalg.norm(v) + 1e-12)
-
-
-def _flat(v: np.ndarray) -> np.ndarray:
-    """Horizontal part of a vector."""
-    return np.array([v[0], v[1], 0.0])
-
-
+# ---- geometry (shared helpers: seal.policies.expert.motion) -------------------------------
 def _extent(box: Box, direction: np.ndarray) -> float:
     """How far the box reaches along ``direction`` (max of corner · direction)."""
     return float(box.center @ direction + np.abs(box.xmat.T @ direction) @ box.half)
@@ -112,26 +99,6 @@ _SIGNS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]
 def _corners(box: Box) -> np.ndarray:
     """The box's 8 corners, world frame."""
     return box.center + (_SIGNS * box.half) @ box.xmat.T
-
-
-def _joint(s: SceneState, obj: str, want_open: bool) -> Articulation:
-    """The joint behind a fixture or region; of several (a whole cabinet), one not yet there."""
-    names = s.joints_of.get(obj, ())
-    if not names:
-        raise KeyError(f"{obj!r} has no articulated joint; known: {sorted(s.joints_of)}")
-    joints = [s.articulations[n] for n in names]
-    return min(joints, key=lambda a: _openness(a) if want_open else -_openness(a))
-
-
-def _open_sign(a: Articulation) -> float:
-    """+1 if opening increases qpos (the range's far end from 0 is positive), else -1."""
-    lo, hi = a.range
-    return 1.0 if abs(hi) >= abs(lo) else -1.0
-
-
-def _openness(a: Articulation) -> float:
-    """How far from closed (metres for a slide, radians for a hinge); 0 when closed."""
-    return a.qpos * _open_sign(a)
 
 
 def _owner(s: SceneState, name: str) -> str:
@@ -156,129 +123,14 @@ def _rotate(v: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
 
 
 # ---- actions -----------------------------------------------------------------------------
-def _tilt(s: SceneState) -> float:
-    """Angle between the fingers' pointing direction and straight down."""
-    return float(np.arccos(np.clip(-s.eef_xmat[2, 2], -1.0, 1.0)))
-
-
-def _act(s: SceneState, goal: np.ndarray, gripper: float, finger_dir: np.ndarray | None = None,
-         point: np.ndarray = DOWN, cap: float = 1.0, signed: bool = False) -> np.ndarray:
-    """Move the eef toward ``goal`` (each axis at most ``cap``), turn the fingers to point
-    along ``point`` and the finger axis to lie along ``finger_dir`` (either sign unless
-    ``signed``; None keeps the yaw).
-
-    Roll and pitch are steered from the eef frame's pointing axis; yaw from the finger axis,
-    which the policy's chunk extrapolation keeps up to date."""
-    delta = np.clip(POS_GAIN * (goal - s.eef_pos), -1.0, 1.0)
-    peak = np.abs(delta).max()
-    if peak > cap:
-        delta *= cap / peak
-    rot = TILT_GAIN * np.cross(s.eef_xmat[:, 2], _unit(point))  # world-frame axis * sin(angle)
-    rot[2] = 0.0
-    if finger_dir is not None:
-        rot[2] = YAW_GAIN * _yaw_err(s, finger_dir, signed)
-    return np.array([*delta, *np.clip(rot, -1.0, 1.0), gripper])
-
-
-def _yaw_err(s: SceneState, finger_dir: np.ndarray, signed: bool = False) -> float:
-    """Yaw that turns the finger axis onto ``finger_dir`` (``signed``: pad to pad exactly;
-    else either way round, whichever keeps the wrist nearer the middle of its range).
-
-    Angles are measured from the wrist's mid-range and never wrap through the opposite
-    direction, where its last joint hits its stops: the wrist may turn the long way round
-    rather than into a stop."""
-    now = _wrist(s, _finger_yaw(s))
-    target = _wrist(s, _yaw_of(finger_dir if signed else _wrist_side(s, finger_dir)))
-    return target - now
-
-
-def _wrist_side(s: SceneState, finger_dir: np.ndarray, then: float = 0.0) -> np.ndarray:
-    """Of ``finger_dir`` and its opposite (the same grip for a symmetric gripper), the one
-    that leaves the wrist nearest the middle of its range after a further ``then`` radians
-    of yaw; ties go to the nearer one, so the choice does not flip back and forth."""
-    now = _wrist(s, _finger_yaw(s))
-
-    def cost(d: np.ndarray) -> float:
-        t = _wrist(s, _yaw_of(d))
-        return abs(t + then) + 0.5 * abs(t - now)
-
-    return min((finger_dir, -finger_dir), key=cost)
-
-
-def _misalign(s: SceneState, finger_dir: np.ndarray) -> float:
-    """Angle between the finger axis and ``finger_dir``, either way round (0..pi/2)."""
-    d = (_yaw_of(finger_dir) - _finger_yaw(s)) % np.pi
-    return float(min(d, np.pi - d))
-
-
-def _wrist(s: SceneState, yaw: float) -> float:
-    """A finger-axis yaw as an offset from the wrist's mid-range, in [-pi, pi): minus the
-    angle the wrist's last joint would have there, with the gripper pointing down (yaw +1
-    turns that joint by -1, measured). Without the arm's joint positions, WRIST_MID_YAW is
-    where that joint is mid-range with the arm near its rest pose."""
-    mid = _finger_yaw(s) + float(s.arm_qpos[6]) if len(s.arm_qpos) >= 7 else WRIST_MID_YAW
-    return (yaw - mid + np.pi) % (2 * np.pi) - np.pi
-
-
-def _yaw_of(v: np.ndarray) -> float:
-    return float(np.arctan2(v[1], v[0]))
-
-
 def _still(s: SceneState, gripper: float) -> np.ndarray:
     """Stay put (straightening up) while the fingers open or close."""
-    return _act(s, s.eef_pos, gripper)
+    return act(s, s.eef_pos, gripper)
 
 
 def _keep_gripper(s: SceneState) -> float:
     """Closed stays closed, open stays open (no pointless finger motion while retreating)."""
     return CLOSE if s.gripper_width < 0.04 else OPEN
-
-
-def _frame(finger: np.ndarray, point: np.ndarray) -> np.ndarray:
-    """End-effector orientation with the fingers pointing along ``point`` and closing along
-    ``finger`` (columns: finger axis, z x finger, pointing direction)."""
-    z = _unit(point)
-    x = _unit(finger - (finger @ z) * z)
-    return np.stack([x, np.cross(z, x), z], axis=1)
-
-
-def _rotvec(rot: np.ndarray) -> np.ndarray:
-    """Axis * angle of a rotation matrix."""
-    angle = float(np.arccos(np.clip((np.trace(rot) - 1) / 2, -1.0, 1.0)))
-    if angle < 1e-6:
-        return np.zeros(3)
-    if angle > np.pi - 1e-3:  # half turn: the axis is the eigenvector of eigenvalue 1
-        w, v = np.linalg.eigh((rot + rot.T) / 2)
-        return v[:, np.argmax(w)] * angle
-    axis = np.array([rot[2, 1] - rot[1, 2], rot[0, 2] - rot[2, 0], rot[1, 0] - rot[0, 1]])
-    return axis / (2 * np.sin(angle)) * angle
-
-
-def _pose_rotation(s: SceneState, finger: np.ndarray, point: np.ndarray) -> np.ndarray:
-    """World-frame axis*angle from the current orientation to the target, the finger axis
-    either way round: the smaller turn, unless it would take the wrist's last joint (which
-    turns the hand about its pointing axis, by +1 rad per rad, measured) near its stops."""
-    options = [_rotvec(_frame(f, point) @ s.eef_xmat.T) for f in (finger, -finger)]
-    wrist = float(s.arm_qpos[6]) if len(s.arm_qpos) >= 7 else 0.0
-
-    def cost(v: np.ndarray) -> float:
-        after = abs(wrist + float(v @ s.eef_xmat[:, 2]))
-        return float(np.linalg.norm(v)) + 10.0 * max(0.0, after - WRIST_SAFE)
-
-    return min(options, key=cost)
-
-
-def _pose_error(s: SceneState, finger: np.ndarray, point: np.ndarray) -> float:
-    return float(np.linalg.norm(_pose_rotation(s, finger, point)))
-
-
-def _act_pose(s: SceneState, goal: np.ndarray, gripper: float, finger: np.ndarray, point: np.ndarray,
-              cap: float = 1.0) -> np.ndarray:
-    """Like `_act`, with the whole orientation steered from the eef frame (for poses where
-    the finger axis is not horizontal, so yaw alone says nothing)."""
-    action = _act(s, goal, gripper, cap=cap)
-    action[3:6] = np.clip(TILT_GAIN * _pose_rotation(s, finger, point), -1.0, 1.0)
-    return action
 
 
 # ---- moves shared by the skills ------------------------------------------------------------
@@ -295,12 +147,12 @@ def _approach(s: SceneState, ready: np.ndarray, gripper: float, finger_dir: np.n
     if _elbow_locked(s):
         # Lean the fingers toward the robot where the gripper is: that bends the elbow off its
         # stop (measured), after which moving on straightens the gripper and keeps the bend.
-        lean = _unit(DOWN * np.cos(UNLOCK_LEAN) - AWAY * np.sin(UNLOCK_LEAN))
-        return _act(s, s.eef_pos, gripper, finger_dir, lean, signed=signed)
+        lean = unit(DOWN * np.cos(UNLOCK_LEAN) - AWAY * np.sin(UNLOCK_LEAN))
+        return act(s, s.eef_pos, gripper, finger_dir, lean, signed=signed)
     err = ready - s.eef_pos
-    turned = abs(_yaw_err(s, finger_dir, signed=True)) if signed else _misalign(s, finger_dir)
+    turned = abs(yaw_toward(s, finger_dir, signed=True)) if signed else misalign(s, finger_dir)
     if np.linalg.norm(err[:2]) < 0.015 and turned < YAW_TOL:
-        return _act(s, ready, gripper, finger_dir, point, signed=signed)  # straight down (or up) onto it
+        return act(s, ready, gripper, finger_dir, point, signed=signed)  # straight down (or up) onto it
     # Lean (if at all) only near the ready point: turning while travelling far out, too, can
     # swing the arm into that locked-elbow pose.
     if np.linalg.norm(err[:2]) > 0.05:
@@ -309,8 +161,8 @@ def _approach(s: SceneState, ready: np.ndarray, gripper: float, finger_dir: np.n
     hi = np.maximum.reduce([a.part.hi, s.eef_pos, ready])
     high = max(_travel_height(s, lo, hi, floor, skip), ready[2] + 0.04)
     if abs(s.eef_pos[2] - high) > 0.03:
-        return _act(s, np.array([*s.eef_pos[:2], high]), gripper, finger_dir, point, signed=signed)  # up/down first
-    return _act(s, np.array([ready[0], ready[1], high]), gripper, finger_dir, point, signed=signed)
+        return act(s, np.array([*s.eef_pos[:2], high]), gripper, finger_dir, point, signed=signed)  # up/down first
+    return act(s, np.array([ready[0], ready[1], high]), gripper, finger_dir, point, signed=signed)
 
 
 def _elbow_locked(s: SceneState) -> bool:
@@ -322,17 +174,17 @@ def _elbow_locked(s: SceneState) -> bool:
 def _back_off(s: SceneState, away: np.ndarray, ahead: float, far: float) -> Step:
     """Retreat along ``away`` until ``ahead`` (the eef's offset that way) reaches ``far``,
     straightening the gripper to point down, then report done."""
-    if ahead > far - 0.01 and _tilt(s) < UPRIGHT_TOL:
+    if ahead > far - 0.01 and hand_tilt(s) < UPRIGHT_TOL:
         return Step(_still(s, _keep_gripper(s)), done=True)
     target = s.eef_pos + away * max(far - ahead, 0.0) + UP * 0.01
-    return Step(_act(s, target, _keep_gripper(s)))
+    return Step(act(s, target, _keep_gripper(s)))
 
 
 def _rise(s: SceneState, height: float) -> Step:
     """Go up to ``height`` with the gripper straightening, then report done."""
-    if s.eef_pos[2] > height - 0.01 and _tilt(s) < UPRIGHT_TOL:
+    if s.eef_pos[2] > height - 0.01 and hand_tilt(s) < UPRIGHT_TOL:
         return Step(_still(s, _keep_gripper(s)), done=True)
-    return Step(_act(s, np.array([*s.eef_pos[:2], max(height, s.eef_pos[2])]), _keep_gripper(s)))
+    return Step(act(s, np.array([*s.eef_pos[:2], max(height, s.eef_pos[2])]), _keep_gripper(s)))
 
 
 # ---- drawers -----------------------------------------------------------------------------
@@ -348,7 +200,7 @@ class _Drawer:
 
 
 def _drawer(a: Articulation) -> _Drawer:
-    pull = _unit(_flat(a.axis * _open_sign(a)))
+    pull = unit(flat(a.axis * open_sign(a)))
     side = np.array([-pull[1], pull[0], 0.0])
     reach = np.array([_extent(g, pull) for g in a.geoms])
     outer = reach.max()
@@ -365,20 +217,20 @@ def close_drawer(s: SceneState, obj: str, goal: GoalAtom) -> Step:
 
     The fingers lean toward the cabinet while pushing: with the gripper straight down, the
     forearm runs into the cabinet's top before a low drawer is fully in."""
-    a = _joint(s, obj, want_open=False)
+    a = joint_of(s, obj, want_open=False)
     g = _drawer(a)
     rel = s.eef_pos - g.handle
     ahead, lateral = rel @ g.pull, rel @ g.side  # eef offset out from / across the handle
     contact = g.front + FINGER_HALF  # `ahead` at which the fingers touch the bar
     if s.facts.get(str(goal), False):
         return _back_off(s, g.pull, ahead, contact + CLEARANCE)
-    lean = _unit(DOWN * np.cos(DRAWER_TILT) - g.pull * np.sin(DRAWER_TILT))
+    lean = unit(DOWN * np.cos(DRAWER_TILT) - g.pull * np.sin(DRAWER_TILT))
     # Push: level with the handle, in front of it or pressing on it. The target lies where the
     # fingers would be with the drawer shut (+1 cm), so the push ends against the stop.
-    remaining = _openness(a) + 0.01
+    remaining = openness(a) + 0.01
     if abs(lateral) < 0.02 and abs(rel[2]) < 0.015 and contact - remaining - 0.02 < ahead < contact + 0.05:
         target = g.handle + g.pull * (contact - remaining)
-        return Step(_act(s, target, CLOSE, g.side, lean, cap=PUSH_SPEED))
+        return Step(act(s, target, CLOSE, g.side, lean, cap=PUSH_SPEED))
     ready = g.handle + g.pull * (contact + 0.03)
     return Step(_approach(s, ready, CLOSE, g.side, lean, a, max(g.top, g.handle[2] + 0.03), _owner(s, obj)))
 
@@ -393,16 +245,16 @@ def open_drawer(s: SceneState, obj: str, goal: GoalAtom) -> Step:
     finger axis) into the cabinet's face. Level, the hand reaches 10 cm above and below the
     bar, so this needs the handle that high above the table (top and middle drawers); a
     lower one (the bottom drawer) is dragged out by friction instead (`_drag_drawer`)."""
-    a = _joint(s, obj, want_open=True)
+    a = joint_of(s, obj, want_open=True)
     g = _drawer(a)
     if g.handle[2] - s.table_z < LEVEL_MIN_HEIGHT:
         return _drag_drawer(s, obj, goal, a, g)
     rel = s.eef_pos - g.handle
     ahead, lateral, dz = rel @ g.pull, rel @ g.side, rel[2]
-    point_in = _unit(-g.pull * np.cos(LEVEL_YAW) + AWAY * np.sin(LEVEL_YAW))
+    point_in = unit(-g.pull * np.cos(LEVEL_YAW) + AWAY * np.sin(LEVEL_YAW))
     if s.facts.get(str(goal), False):
         if s.gripper_width < OPEN_WIDTH and ahead < GRIP_OUT + 0.03:
-            return Step(_act_pose(s, s.eef_pos, OPEN, UP, point_in))  # let go first
+            return Step(act_pose(s, s.eef_pos, OPEN, UP, point_in))  # let go first
         # Slide off the end of the bar (away from the robot: backing straight out can run the
         # wrist into whatever stands behind it), go up, still level (the hand reaches 10 cm
         # below the fingers), then turn to point down again.
@@ -410,33 +262,33 @@ def open_drawer(s: SceneState, obj: str, goal: GoalAtom) -> Step:
         along = rel @ off
         if along < g.bar_half + 0.03 and dz < 0.02:
             target = s.eef_pos + off * (g.bar_half + 0.04 - along)
-            return Step(_act_pose(s, target, OPEN, UP, point_in))
+            return Step(act_pose(s, target, OPEN, UP, point_in))
         if dz < LEVEL_CLEARANCE - 0.01:
             target = np.array([*s.eef_pos[:2], g.handle[2] + LEVEL_CLEARANCE])
-            return Step(_act_pose(s, target, OPEN, UP, point_in))
+            return Step(act_pose(s, target, OPEN, UP, point_in))
         return _rise(s, s.eef_pos[2])
     near_line = abs(lateral) < 0.02 and abs(dz) < 0.02
     if near_line and -0.01 < ahead < 0.15 and 0.012 < s.gripper_width < 0.05:
         # Holding the bar: pull straight out (the window is long: the drawer comes along,
         # and the policy's chunk extrapolation moves only the gripper).
-        remaining = OPEN_TO - _openness(a)
+        remaining = OPEN_TO - openness(a)
         target = s.eef_pos + g.pull * max(remaining, 0.0) - g.side * lateral
         target[2] = g.handle[2]
-        return Step(_act_pose(s, target, CLOSE, UP, point_in, cap=PUSH_SPEED))
+        return Step(act_pose(s, target, CLOSE, UP, point_in, cap=PUSH_SPEED))
     grip = g.handle + g.pull * GRIP_OUT
     err = grip - s.eef_pos
-    aligned = _pose_error(s, UP, point_in) < 0.15
+    aligned = pose_error(s, UP, point_in) < 0.15
     if s.gripper_width < OPEN_WIDTH:
         if np.linalg.norm(err) < 0.012 and s.gripper_width > 0.012:
-            return Step(_act_pose(s, grip, CLOSE, UP, point_in))  # still closing on the bar
+            return Step(act_pose(s, grip, CLOSE, UP, point_in))  # still closing on the bar
         # Closed on nothing, or stale: open, backing out.
-        return Step(_act_pose(s, s.eef_pos + g.pull * 0.01, OPEN, UP, point_in))
+        return Step(act_pose(s, s.eef_pos + g.pull * 0.01, OPEN, UP, point_in))
     if np.linalg.norm(err) < 0.006 and aligned:
-        return Step(_act_pose(s, grip, CLOSE, UP, point_in))  # there: pinch
+        return Step(act_pose(s, grip, CLOSE, UP, point_in))  # there: pinch
     if abs(lateral) < 0.012 and abs(dz) < 0.012 and GRIP_OUT - 0.01 < ahead < GRIP_OUT + 0.14 and aligned:
-        return Step(_act_pose(s, grip, OPEN, UP, point_in, cap=PUSH_SPEED))  # straight in
+        return Step(act_pose(s, grip, OPEN, UP, point_in, cap=PUSH_SPEED))  # straight in
     # Anywhere else: to a point level with the bar, out in front of it, turning level.
-    return Step(_act_pose(s, g.handle + g.pull * (GRIP_OUT + 0.1), OPEN, UP, point_in))
+    return Step(act_pose(s, g.handle + g.pull * (GRIP_OUT + 0.1), OPEN, UP, point_in))
 
 
 def _drag_drawer(s: SceneState, obj: str, goal: GoalAtom, a: Articulation, g: _Drawer) -> Step:
@@ -449,7 +301,7 @@ def _drag_drawer(s: SceneState, obj: str, goal: GoalAtom, a: Articulation, g: _D
     on the bar (mu ~1) is well above the drawer's damping at a moderate pull. The fingers
     lean toward the cabinet, like `close_drawer`, so the hand's back edge stays out of the
     face of the drawer above; the finger axis lies along the bar."""
-    lean = _unit(DOWN * np.cos(DRAG_TILT) - g.pull * np.sin(DRAG_TILT))
+    lean = unit(DOWN * np.cos(DRAG_TILT) - g.pull * np.sin(DRAG_TILT))
     # The eef where the fingertips (FINGERTIP_BELOW along the pointing direction) rest on the
     # bar's top, a little out from its middle (the hand's back edge clears the face above).
     tip = np.array([*(g.handle + g.pull * DRAG_OUT)[:2], g.bar_top])
@@ -461,17 +313,17 @@ def _drag_drawer(s: SceneState, obj: str, goal: GoalAtom, a: Articulation, g: _D
     if abs(lateral) < 0.02 and -DRAG_PRESS - 0.012 < dz < 0.004 and -0.012 < ahead < 0.012 + DRAG_SLACK:
         # On the bar, pressing it: drag out, pressing down. The window reaches ahead by what a
         # chunk moves the gripper: the policy's extrapolation leaves the drawer behind.
-        remaining = max(OPEN_TO - _openness(a), 0.0) + 0.01
+        remaining = max(OPEN_TO - openness(a), 0.0) + 0.01
         target = s.eef_pos + g.pull * remaining - g.side * lateral
         target[2] = contact[2] - DRAG_PRESS  # pressing: the bar stops the fingers, the controller pushes
-        return Step(_act(s, target, CLOSE, g.side, lean, cap=DRAG_SPEED))
+        return Step(act(s, target, CLOSE, g.side, lean, cap=DRAG_SPEED))
     if abs(lateral) < 0.012 and abs(ahead) < 0.006 and 0.0 <= dz < DRAG_OVER + 0.012:
-        return Step(_act(s, contact + DOWN * DRAG_PRESS, CLOSE, g.side, lean, cap=PUSH_SPEED))  # press onto it
+        return Step(act(s, contact + DOWN * DRAG_PRESS, CLOSE, g.side, lean, cap=PUSH_SPEED))  # press onto it
     # The bar straight below the next drawer's handle: get over it from the front, just above
     # its top (from above, the fingers would land on the handle of the drawer above).
     over = contact + UP * DRAG_OVER
-    if abs(lateral) < 0.012 and 0.0 < ahead < 0.09 and -0.012 < s.eef_pos[2] - over[2] < 0.012 and _misalign(s, g.side) < YAW_TOL:
-        return Step(_act(s, over, CLOSE, g.side, lean, cap=DRAG_SPEED))  # in over the bar, slowly
+    if abs(lateral) < 0.012 and 0.0 < ahead < 0.09 and -0.012 < s.eef_pos[2] - over[2] < 0.012 and misalign(s, g.side) < YAW_TOL:
+        return Step(act(s, over, CLOSE, g.side, lean, cap=DRAG_SPEED))  # in over the bar, slowly
     ready = over + g.pull * 0.06
     return Step(_approach(s, ready, CLOSE, g.side, lean, a, g.bar_top, _owner(s, obj)))
 
@@ -487,10 +339,10 @@ def in_sweep(s: SceneState, region: str, movers: tuple[str, ...]) -> str | None:
     the hand is 12 cm tall and would have to come down through the drawer."""
     joints = [s.articulations[n] for n in s.joints_of.get(region, ())]
     a = next((j for j in joints if j.kind == "slide"), None)
-    if a is None or _openness(a) > SWEEP_CHECK_UNTIL:
+    if a is None or openness(a) > SWEEP_CHECK_UNTIL:
         return None
     g = _drawer(a)
-    swept_to = _extent(_aabb(a.part), g.pull) + OPEN_TO - _openness(a)  # the drawer's front, once open
+    swept_to = _extent(_aabb(a.part), g.pull) + OPEN_TO - openness(a)  # the drawer's front, once open
     for name in movers:
         b = s.bodies.get(name)
         if b is None or b.hi[2] > a.part.lo[2]:
@@ -507,10 +359,10 @@ def in_sweep(s: SceneState, region: str, movers: tuple[str, ...]) -> str | None:
 def push_clear(s: SceneState, region: str, name: str) -> Step:
     """Push ``name`` out of the drawer's sweep, along the pull, before opening it: closed
     fingers low against its back (the side facing the cabinet), the hand above its rim."""
-    a = _joint(s, region, want_open=True)
+    a = joint_of(s, region, want_open=True)
     g = _drawer(a)
     b = s.bodies[name]
-    swept_to = _extent(_aabb(a.part), g.pull) + OPEN_TO - _openness(a)
+    swept_to = _extent(_aabb(a.part), g.pull) + OPEN_TO - openness(a)
     back = -_extent(_aabb(b), -g.pull)  # its edge nearest the cabinet, along the pull
     need = swept_to + SWEEP_MARGIN - back
     lateral = float((b.center - g.handle) @ g.side)
@@ -522,12 +374,12 @@ def push_clear(s: SceneState, region: str, name: str) -> Step:
     if abs(side) < 0.02 and abs(rel[2]) < 0.015 and -0.02 < ahead < 0.03 + PUSH_SLACK:
         target = s.eef_pos + g.pull * (need + 0.005)
         target[2] = z
-        return Step(_act(s, target, CLOSE, g.side, cap=PUSH_SPEED))
+        return Step(act(s, target, CLOSE, g.side, cap=PUSH_SPEED))
     ready = contact - g.pull * 0.02
-    if np.linalg.norm((ready - s.eef_pos)[:2]) < 0.025 and _misalign(s, g.side) < YAW_TOL:
+    if np.linalg.norm((ready - s.eef_pos)[:2]) < 0.025 and misalign(s, g.side) < YAW_TOL:
         # Over the spot behind it: straight down, correcting sideways drift on the way
         # (nothing but the object itself is near, and the hand stays behind its rim).
-        return Step(_act(s, ready, CLOSE, g.side))
+        return Step(act(s, ready, CLOSE, g.side))
     hover = np.array([*ready[:2], b.hi[2] + 0.05])
     return Step(_approach(s, hover, CLOSE, g.side, DOWN, a, b.hi[2], _owner(s, region)))
 
@@ -547,7 +399,7 @@ class _Door:
 
     def turned(self, v: np.ndarray, toward_closed: float) -> np.ndarray:
         """``v`` as it would be with the door turned ``toward_closed`` radians further shut."""
-        return _rotate(v, self.a.axis, -_open_sign(self.a) * toward_closed)
+        return _rotate(v, self.a.axis, -open_sign(self.a) * toward_closed)
 
     def point(self, radius: float, offset: float, z: float, toward_closed: float = 0.0) -> np.ndarray:
         """World point ``radius`` along the door and ``offset`` off its pushed face's side."""
@@ -558,13 +410,13 @@ class _Door:
 
 def _door(a: Articulation) -> _Door:
     plate = max(a.geoms, key=lambda g: float(np.prod(g.half)))  # the door leaf
-    out = _flat(plate.center - a.anchor)
-    along = max((_flat(plate.xmat[:, i]) for i in range(3)), key=lambda v: abs(v @ out))
-    along = _unit(along if along @ out > 0 else -along)
+    out = flat(plate.center - a.anchor)
+    along = max((flat(plate.xmat[:, i]) for i in range(3)), key=lambda v: abs(v @ out))
+    along = unit(along if along @ out > 0 else -along)
     # Closing turns the door by -open_sign about the axis: its face moves along `closing`.
-    closing = _unit(_flat(np.cross(a.axis, along))) * -_open_sign(a)
+    closing = unit(flat(np.cross(a.axis, along))) * -open_sign(a)
     push = -closing
-    dist = [np.linalg.norm(_flat(g.center - a.anchor)) for g in a.geoms]
+    dist = [np.linalg.norm(flat(g.center - a.anchor)) for g in a.geoms]
     far = max(d for g, d in zip(a.geoms, dist) if g is not plate)
     grip = [g for g, d in zip(a.geoms, dist) if g is not plate and d > far - 0.03]
     handle = np.mean([g.center for g in grip], axis=0)
@@ -572,7 +424,7 @@ def _door(a: Articulation) -> _Door:
                  face=_extent(plate, push) - float(a.anchor @ push),
                  inner=_extent(plate, -push) + float(a.anchor @ push),
                  handle=handle, handle_top=max(float(g.hi[2]) for g in grip),
-                 radius=float(np.linalg.norm(_flat(handle - a.anchor))), top=float(plate.hi[2]))
+                 radius=float(np.linalg.norm(flat(handle - a.anchor))), top=float(plate.hi[2]))
 
 
 @dataclass(frozen=True)
@@ -614,7 +466,7 @@ def opening(s: SceneState, fixture: str) -> Opening | None:
         if plate.hi[2] - plate.lo[2] < 0.05 or len(a.geoms) < 2:  # a knob, not a door
             continue
         d = _door(a)
-        shut = _openness(a)
+        shut = openness(a)
         leaf = max(_extent(g, d.along) for g in a.geoms) - float(a.anchor @ d.along)
         return Opening(door=d, out=d.turned(d.push, shut), along=d.turned(d.along, shut), leaf=leaf,
                        bottom=float(plate.lo[2]), top=float(plate.hi[2]))
@@ -656,12 +508,12 @@ def _push_in(s: SceneState, o: Opening, name: str, fixture: str) -> Step:
     lateral = o.lateral(b.center)
     z = b.lo[2] + PUSH_IN_HEIGHT * b.size[2]
     contact = o.point(lateral, -(out + FINGER_HALF), z)  # eef touching the outermost part
-    lean = _unit(DOWN * np.cos(DRAWER_TILT) - o.out * np.sin(DRAWER_TILT))
+    lean = unit(DOWN * np.cos(DRAWER_TILT) - o.out * np.sin(DRAWER_TILT))
     rel = s.eef_pos - contact
     ahead, across = float(rel @ o.out), float(rel @ o.along)
     push = out + PUSH_IN_MARGIN
     if abs(across) < 0.02 and abs(rel[2]) < 0.015 and -push - 0.02 < ahead < 0.05:
-        return Step(_act(s, contact - o.out * push, CLOSE, o.along, lean, cap=PUSH_SPEED))
+        return Step(act(s, contact - o.out * push, CLOSE, o.along, lean, cap=PUSH_SPEED))
     ready = contact + o.out * 0.03
     return Step(_approach(s, ready, CLOSE, o.along, lean, o.door.a, b.hi[2], fixture))
 
@@ -670,31 +522,31 @@ def close_door(s: SceneState, obj: str, goal: GoalAtom) -> Step:
     """Push the door shut along its arc with closed fingers on its face, near its top edge
     (the hand passes just above the door), then back away. Something put in that still
     sticks out of the doorway (a mug's handle) is pushed in first."""
-    d = _door(_joint(s, obj, want_open=False))
+    d = _door(joint_of(s, obj, want_open=False))
     a = d.a
     rel = s.eef_pos - a.anchor
     radial, off = rel @ d.along, rel @ d.push - d.face  # along the door; out from its face
     if s.facts.get(str(goal), False):
         return _back_off(s, d.push, off, FINGER_HALF + CLEARANCE)
     o = opening(s, obj)
-    stuck = _sticking_out(s, o, _owner(s, obj)) if o is not None and _openness(a) > 0.3 else None
+    stuck = _sticking_out(s, o, _owner(s, obj)) if o is not None and openness(a) > 0.3 else None
     if stuck is not None:
         return _push_in(s, o, stuck, _owner(s, obj))
     if o is not None and o.depth(s.eef_pos) > -0.06 and s.eef_pos[2] < o.top - 0.05 and 0 < o.lateral(s.eef_pos) < o.leaf:
         # Just pushed something in: straight back out of the doorway, low, straightening up
         # (rising there, leaning, runs the hand into the doorway's top edge).
-        return Step(_act(s, s.eef_pos + o.out * (0.07 + o.depth(s.eef_pos)), CLOSE))
+        return Step(act(s, s.eef_pos + o.out * (0.07 + o.depth(s.eef_pos)), CLOSE))
     z = d.top - HAND_ABOVE_EEF + 0.015  # hand just above the top edge, fingers on the face
     reach = d.radius - 0.07  # push point: well out along the door, clear of the handle
-    lead = min(DOOR_LEAD, _openness(a) + 0.05)  # end pressing just past closed
+    lead = min(DOOR_LEAD, openness(a) + 0.05)  # end pressing just past closed
     pushing = abs(radial - reach) < 0.04 and abs(s.eef_pos[2] - z) < 0.012 and -0.06 < off < FINGER_HALF + 0.05
     if pushing:
         target = d.point(reach, d.face + FINGER_HALF, z, toward_closed=lead)
-        return Step(_act(s, target, CLOSE, d.turned(d.along, lead), cap=PUSH_SPEED))
+        return Step(act(s, target, CLOSE, d.turned(d.along, lead), cap=PUSH_SPEED))
     inside = _inside(s, d, _owner(s, obj))
     if inside > 0:  # still in the cabinet (just put something in it): straight out first
-        out = d.turned(d.push, _openness(a))  # the closed door's outward normal
-        return Step(_act(s, s.eef_pos + out * (inside + 0.05), _keep_gripper(s)))
+        out = d.turned(d.push, openness(a))  # the closed door's outward normal
+        return Step(act(s, s.eef_pos + out * (inside + 0.05), _keep_gripper(s)))
     ready = d.point(reach, d.face + FINGER_HALF + 0.03, z)
     return Step(_approach(s, ready, CLOSE, d.along, DOWN, a, d.top, _owner(s, obj)))
 
@@ -702,7 +554,7 @@ def close_door(s: SceneState, obj: str, goal: GoalAtom) -> Step:
 def open_door(s: SceneState, obj: str, goal: GoalAtom) -> Step:
     """Pull the door open by its handle as far as the arm comfortably reaches, then let go
     and push the rest of the way from the door's inner face; back away once it is open."""
-    d = _door(_joint(s, obj, want_open=True))
+    d = _door(joint_of(s, obj, want_open=True))
     if s.facts.get(str(goal), False):
         grip = _handle_grip(d)
         if s.gripper_width < OPEN_WIDTH and np.linalg.norm(s.eef_pos - grip) < 0.03:
@@ -710,7 +562,7 @@ def open_door(s: SceneState, obj: str, goal: GoalAtom) -> Step:
         side = d.push if (s.eef_pos - d.a.anchor) @ d.push > 0 else -d.push  # the side the gripper is on
         face = d.face if side @ d.push > 0 else d.inner
         return _back_off(s, side, float((s.eef_pos - d.a.anchor) @ side), face + 0.04 + CLEARANCE)
-    if _openness(d.a) < DOOR_PULL_TO:
+    if openness(d.a) < DOOR_PULL_TO:
         return _pull_handle(s, d, obj)
     return _push_open(s, d, obj)
 
@@ -727,12 +579,12 @@ def _pull_handle(s: SceneState, d: _Door, obj: str) -> Step:
     """Pinch the handle (fingers either side of it along the door) and pull it round the
     hinge, turning the wrist with the door."""
     a = d.a
-    rel = _flat(s.eef_pos - a.anchor)
+    rel = flat(s.eef_pos - a.anchor)
     grip = _handle_grip(d)
     out = float((grip - a.anchor) @ d.push)
     # Hold the side of the handle that leaves the wrist room to turn with the door.
-    swing = -_open_sign(a) * float(a.axis[2]) * (DOOR_PULL_TO - _openness(a))  # yaw still to come
-    finger = _wrist_side(s, d.along, then=swing)
+    swing = -open_sign(a) * float(a.axis[2]) * (DOOR_PULL_TO - openness(a))  # yaw still to come
+    finger = wrist_side(s, d.along, then=swing)
     # Where the eef is around the hinge, relative to the grip point: the door moves with a
     # held handle, and the policy's chunk extrapolation moves only the gripper, so holding is
     # judged by radius and by angle ahead (in the opening direction) of the grip.
@@ -741,18 +593,18 @@ def _pull_handle(s: SceneState, d: _Door, obj: str) -> Step:
     on_arc = abs(np.linalg.norm(rel) - radius) < 0.03 and abs(s.eef_pos[2] - grip[2]) < 0.03
     if on_arc and -0.1 < ahead < DOOR_LEAD + 0.15 and 0.012 < s.gripper_width < 0.05:
         target = d.point(d.radius, out, grip[2], toward_closed=-DOOR_LEAD)
-        return Step(_act(s, target, CLOSE, d.turned(finger, -DOOR_LEAD), cap=PUSH_SPEED, signed=True))
+        return Step(act(s, target, CLOSE, d.turned(finger, -DOOR_LEAD), cap=PUSH_SPEED, signed=True))
     err = grip - s.eef_pos
     if s.gripper_width < OPEN_WIDTH:
         if np.linalg.norm(err) < 0.012 and s.gripper_width > 0.012:
-            return Step(_act(s, grip, CLOSE, finger, signed=True))  # still closing on it
-        return Step(_act(s, s.eef_pos + d.push * 0.01, OPEN, finger, signed=True))  # open, backing out
-    aligned = abs(_yaw_err(s, finger, signed=True)) < 0.1
+            return Step(act(s, grip, CLOSE, finger, signed=True))  # still closing on it
+        return Step(act(s, s.eef_pos + d.push * 0.01, OPEN, finger, signed=True))  # open, backing out
+    aligned = abs(yaw_toward(s, finger, signed=True)) < 0.1
     if np.linalg.norm(err) < 0.006 and aligned:
-        return Step(_act(s, grip, CLOSE, finger, signed=True))  # there: pinch
+        return Step(act(s, grip, CLOSE, finger, signed=True))  # there: pinch
     offset = rel @ d.push - out  # how far out in front of the grip point
     if abs(float(rel @ d.along) - d.radius) < 0.01 and abs(err[2]) < 0.01 and -0.01 < offset < 0.08 and aligned:
-        return Step(_act(s, grip, OPEN, finger, cap=PUSH_SPEED, signed=True))  # straight in
+        return Step(act(s, grip, OPEN, finger, cap=PUSH_SPEED, signed=True))  # straight in
     ready = d.point(d.radius, out + 0.05, grip[2])
     return Step(_approach(s, ready, OPEN, finger, DOWN, a, d.top, _owner(s, obj), signed=True))
 
@@ -770,14 +622,14 @@ def _push_open(s: SceneState, d: _Door, obj: str) -> Step:
     if round_handle and s.eef_pos[2] < d.handle_top + 0.02:
         # Fingers round the handle's top: straight up off it first (backing out, away from
         # the hinge, would take the arm out of reach).
-        return Step(_act(s, np.array([*s.eef_pos[:2], d.handle_top + 0.02]), OPEN))
+        return Step(act(s, np.array([*s.eef_pos[:2], d.handle_top + 0.02]), OPEN))
     z = d.top - HAND_ABOVE_EEF + 0.015  # hand just above the door's top edge, fingers on its face
     reach = DOOR_INNER_REACH * d.radius
     radial, off = rel @ d.along, rel @ -d.push - d.inner  # along the door; in from its inner face
     if abs(radial - reach) < 0.04 and abs(s.eef_pos[2] - z) < 0.012 and -0.06 < off < FINGER_HALF + 0.05:
-        lead = min(DOOR_LEAD, DOOR_OPEN_TO - _openness(a) + 0.05)
+        lead = min(DOOR_LEAD, DOOR_OPEN_TO - openness(a) + 0.05)
         target = d.point(reach, -(d.inner + FINGER_HALF), z, toward_closed=-lead)
-        return Step(_act(s, target, CLOSE, d.turned(d.along, -lead), cap=PUSH_SPEED))
+        return Step(act(s, target, CLOSE, d.turned(d.along, -lead), cap=PUSH_SPEED))
     ready = d.point(reach, -(d.inner + FINGER_HALF + 0.03), z)
     # Over the door's top edge only just: the door is far out, where the arm has little reach
     # left to go higher (stretched, its elbow locks straight and it stops following).
@@ -787,7 +639,7 @@ def _push_open(s: SceneState, d: _Door, obj: str) -> Step:
 def _inside(s: SceneState, d: _Door, fixture: str) -> float:
     """How deep the eef is behind the closed door's plane, within the fixture's box (0 if
     it is not in there)."""
-    out = d.turned(d.push, _openness(d.a))
+    out = d.turned(d.push, openness(d.a))
     depth = float((d.a.anchor - s.eef_pos) @ out)
     box = s.bodies.get(fixture)
     if box is None or depth <= 0 or s.eef_pos[2] > box.hi[2]:
@@ -820,10 +672,10 @@ def _knob(a: Articulation) -> _Knob:
 def turn_knob(s: SceneState, obj: str, goal: GoalAtom, on: bool) -> Step:
     """Grip the knob's ridge across, twist the wrist until the knob is on (or off), let go,
     and rise clear."""
-    k = _knob(_joint(s, obj, want_open=on))
+    k = _knob(joint_of(s, obj, want_open=on))
     err = k.centre - s.eef_pos
     near = np.linalg.norm(err[:2]) < 0.012 and abs(err[2]) < 0.015
-    turn = _open_sign(k.a) * (1.0 if on else -1.0)  # which way qpos has to go
+    turn = open_sign(k.a) * (1.0 if on else -1.0)  # which way qpos has to go
     if s.facts.get(str(goal), False):
         if near and s.gripper_width < OPEN_WIDTH:
             # Let go of the ridge before moving; but a knob let go while still pressed into
@@ -834,31 +686,31 @@ def turn_knob(s: SceneState, obj: str, goal: GoalAtom, on: bool) -> Step:
         return _rise(s, k.top + CLEARANCE)
     # Hold the ridge the way round that leaves the wrist room for the whole twist: a 1.5 rad
     # twist started from the wrong side runs the wrist into its stop.
-    twist = turn * (KNOB_ON_AT + 0.1 - _openness(k.a) if on else _openness(k.a))
-    grip = _wrist_side(s, k.across, then=twist * float(k.a.axis[2]))
-    if near and _misalign(s, k.across) < 0.5 and s.gripper_width > 0.012:
+    twist = turn * (KNOB_ON_AT + 0.1 - openness(k.a) if on else openness(k.a))
+    grip = wrist_side(s, k.across, then=twist * float(k.a.axis[2]))
+    if near and misalign(s, k.across) < 0.5 and s.gripper_width > 0.012:
         if s.gripper_width >= 0.05:  # closing on the ridge, still centring
-            return Step(_act(s, k.centre, CLOSE))
+            return Step(act(s, k.centre, CLOSE))
         # Holding the ridge: keep the wrist a full lead ahead of the knob until the sub-goal
         # holds (the grip gives by up to ~0.2 rad, so a lead that shrank near the target
         # would stall short of it); "off" ends pressed against the joint's stop.
-        return Step(_act(s, k.centre, CLOSE, _rotate(grip, k.a.axis, KNOB_LEAD * turn), signed=True))
+        return Step(act(s, k.centre, CLOSE, _rotate(grip, k.a.axis, KNOB_LEAD * turn), signed=True))
     if s.gripper_width < OPEN_WIDTH:  # closed on nothing, or slipped off: open, moving up a little
-        return Step(_act(s, s.eef_pos + UP * 0.01, OPEN))
+        return Step(act(s, s.eef_pos + UP * 0.01, OPEN))
     hover = np.array([*k.centre[:2], k.top + 0.05])
-    if np.linalg.norm(err[:2]) < 0.01 and abs(_yaw_err(s, grip, signed=True)) < 0.1:
+    if np.linalg.norm(err[:2]) < 0.01 and abs(yaw_toward(s, grip, signed=True)) < 0.1:
         if near:
-            return Step(_act(s, k.centre, CLOSE))  # there: grip
-        return Step(_act(s, k.centre, OPEN, grip, signed=True))  # straight down onto it
+            return Step(act(s, k.centre, CLOSE))  # there: grip
+        return Step(act(s, k.centre, OPEN, grip, signed=True))  # straight down onto it
     if s.eef_pos[2] < hover[2] - 0.02 and np.linalg.norm(err[:2]) > 0.02:
-        return Step(_act(s, np.array([*s.eef_pos[:2], hover[2]]), OPEN, grip, signed=True))  # up first
-    return Step(_act(s, hover, OPEN, grip, signed=True))
+        return Step(act(s, np.array([*s.eef_pos[:2], hover[2]]), OPEN, grip, signed=True))  # up first
+    return Step(act(s, hover, OPEN, grip, signed=True))
 
 
 def _pressed_into_stop(a: Articulation) -> bool:
     """Whether the joint sits measurably past its closed-side limit (MuJoCo's limits are soft)."""
-    stop = a.range[0] if _open_sign(a) > 0 else a.range[1]
-    return (stop - a.qpos) * _open_sign(a) > 0.0005
+    stop = a.range[0] if open_sign(a) > 0 else a.range[1]
+    return (stop - a.qpos) * open_sign(a) > 0.0005
 
 
 def turn_on(s: SceneState, obj: str, goal: GoalAtom) -> Step:
@@ -872,7 +724,7 @@ def turn_off(s: SceneState, obj: str, goal: GoalAtom) -> Step:
 # ---- dispatch ----------------------------------------------------------------------------
 def open_(s: SceneState, obj: str, goal: GoalAtom) -> Step:
     """Open a drawer (region of a cabinet) or a door (microwave)."""
-    a = _joint(s, obj, want_open=True)
+    a = joint_of(s, obj, want_open=True)
     if a.kind == "slide":
         return open_drawer(s, obj, goal)
     return open_door(s, obj, goal)
@@ -880,7 +732,7 @@ def open_(s: SceneState, obj: str, goal: GoalAtom) -> Step:
 
 def close(s: SceneState, obj: str, goal: GoalAtom) -> Step:
     """Close a drawer (region of a cabinet) or a door (microwave)."""
-    a = _joint(s, obj, want_open=False)
+    a = joint_of(s, obj, want_open=False)
     if a.kind == "slide":
         return close_drawer(s, obj, goal)
     return close_door(s, obj, goal)

@@ -20,10 +20,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from seal.policies.expert import skills
-from seal.policies.expert.articulated import (AWAY, DOWN, TILT_GAIN, _act, _flat, _frame, _joint, _open_sign, _openness,
-                                              _rotvec, _unit)
-from seal.policies.expert.skills import CLOSE, HAND_HALF, OPEN, OPEN_WIDTH, Step, _path_top, is_tall
+from seal.policies.expert.articulated import AWAY
+from seal.policies.expert.motion import (DOWN, TILT_GAIN, act, flat, hand_frame, horizontal_frame, joint_of, open_sign,
+                                         openness, path_top, rotvec, unit)
+from seal.policies.expert.skills import CLOSE, HAND_HALF, OPEN, OPEN_WIDTH, Step, is_tall
 from seal.sim.scene import Body, SceneState
 
 LEVEL_TOL = 0.15  # radians of pointing error still counted as level / as pointing down
@@ -91,7 +91,7 @@ def lay_inside(s: SceneState, obj: str, target: str) -> Step:
     # clears everything (it sweeps forward, never lower, while tipping), then tip. Once
     # tipping, go on tipping (the arm drifts a little while the wrist turns).
     length = float(np.max(body.local_hi - body.local_lo))
-    path = _path_top(s, s.eef_pos[:2], goal_xy, obj, float(np.max(body.size[:2])) / 2 + 0.02)
+    path = path_top(s, s.eef_pos[:2], goal_xy, obj, float(np.max(body.size[:2])) / 2 + 0.02)
     turn_z = max(max(path, holder) + length + CARRY_CLEAR, release_z)
     turn = np.array([*goal_xy, turn_z])
     tilt = float(np.arccos(np.clip(-s.eef_xmat[2, 2], -1.0, 1.0)))  # pointing, off straight down
@@ -101,23 +101,23 @@ def lay_inside(s: SceneState, obj: str, target: str) -> Step:
         if s.eef_pos[2] < turn_z - 0.03 and xy_err > TURN_XY:
             turn = np.array([*s.eef_pos[:2], turn_z])  # up first
         # Signed yaw, the long way round if the short one runs into the wrist's stop.
-        return Step(_act(s, turn, CLOSE, finger_dir=finger, signed=True))
+        return Step(act(s, turn, CLOSE, finger_dir=finger, signed=True))
     return Step(_tip(s, turn, CLOSE, finger, d, cap=0.6))
 
 
 def _tip(s: SceneState, goal: np.ndarray, gripper: float, finger: np.ndarray, point: np.ndarray,
          cap: float = 1.0) -> np.ndarray:
     """Move toward ``goal`` while turning the fingers to point along ``point``, the finger axis
-    along ``finger`` exactly (never the half-turn twin `_act_pose` may pick: that would roll
+    along ``finger`` exactly (never the half-turn twin `act_pose` may pick: that would roll
     the held bottle over), at most TIP_RATE per action."""
-    action = _act(s, goal, gripper, cap=cap)
+    action = act(s, goal, gripper, cap=cap)
     v = _tip_rotation(s, finger, point)
     action[3:6] = np.clip(TILT_GAIN * v, -TIP_RATE, TIP_RATE)
     return action
 
 
 def _tip_rotation(s: SceneState, finger: np.ndarray, point: np.ndarray) -> np.ndarray:
-    return _rotvec(_frame(finger, point) @ s.eef_xmat.T)
+    return rotvec(hand_frame(finger, point) @ s.eef_xmat.T)
 
 
 def _tip_error(s: SceneState, finger: np.ndarray, point: np.ndarray) -> float:
@@ -130,14 +130,14 @@ def _spot(s: SceneState, target: str, body: Body) -> np.ndarray:
     cabinet's face, which a bottle dropped from above would land on)."""
     site = s.sites[target]
     xy = site.pos[:2].copy()
-    a = _joint(s, target, want_open=False)
-    pull = _unit(_flat(a.axis * _open_sign(a)))[:2]
+    a = joint_of(s, target, want_open=False)
+    pull = unit(flat(a.axis * open_sign(a)))[:2]
     corners = np.array([[x, y] for x in (a.part.lo[0], a.part.hi[0]) for y in (a.part.lo[1], a.part.hi[1])])
     front = float(np.max(corners @ pull))  # the drawer's front, along the pull
-    out = (front - _openness(a), front)  # the stretch that is out of the cabinet
+    out = (front - openness(a), front)  # the stretch that is out of the cabinet
     half = float(np.abs(site.xmat[:2, :2] @ site.size[:2]) @ np.abs(pull))  # the region's half depth
     centre = float(xy @ pull)
-    radius = float(np.min(skills._horizontal_frame(body)[1])) / 2
+    radius = float(np.min(horizontal_frame(body)[1])) / 2
     lo = max(out[0], centre - half) + radius
     hi = min(out[1], centre + half) - radius
     along = (lo + hi) / 2 if lo <= hi else centre
@@ -163,8 +163,8 @@ def _let_go_and_rise(s: SceneState, body: Body, finger: np.ndarray) -> Step:
 
 def _holder_top_near(s: SceneState, body: Body) -> float:
     """Top of the tallest thing under the hand (the cabinet the bottle went into)."""
-    return _path_top(s, s.eef_pos[:2], s.eef_pos[:2], "", HAND_HALF[0])
+    return path_top(s, s.eef_pos[:2], s.eef_pos[:2], "", HAND_HALF[0])
 
 
 def _pointing(s: SceneState) -> np.ndarray:
-    return _unit(s.eef_xmat[:, 2])
+    return unit(s.eef_xmat[:, 2])

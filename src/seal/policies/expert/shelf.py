@@ -20,8 +20,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from seal.policies.expert.articulated import UPRIGHT_TOL, _act, _act_pose, _misalign, _pose_error, _tilt
-from seal.policies.expert.skills import CLOSE, OPEN, OPEN_WIDTH, Step, _holder, hold
+from seal.policies.expert.articulated import UPRIGHT_TOL
+from seal.policies.expert.motion import act, act_pose, hand_tilt, holder_of, misalign, pose_error
+from seal.policies.expert.skills import CLOSE, OPEN, OPEN_WIDTH, Step, hold
 from seal.sim.scene import Box, SceneState
 
 DOWN = np.array([0.0, 0.0, -1.0])
@@ -76,7 +77,7 @@ def level(s: SceneState, target: str) -> Level | None:
     the fixture right above it and exactly one of its sides open."""
     if target not in s.sites or target.endswith("contain_region") or target in s.joints_of:
         return None
-    holder = _holder(s, target)
+    holder = holder_of(s, target)
     boxes = s.fixture_boxes.get(holder or "", ())
     if not boxes:
         return None
@@ -143,22 +144,22 @@ def place_under_roof(s: SceneState, obj: str, target: str, knobs) -> Step:
     reach = float(np.max(body.size))
     stage_depth = -(reach + STAGE_GAP)
     lat_goal = lv.lateral(p) - lv.lateral(body.center)  # the object's box centred on the region
-    turned = _pose_error(s, finger, point) < TURNED
+    turned = pose_error(s, finger, point) < TURNED
     if not turned:
         # Turn level in front of the opening, high enough that the hanging object swings clear
         # of the table; keep pointing down until there (turning far out stalls the arm).
         high = max(s.table_z + reach + 0.06, lv.floor + 0.05 + reach / 2)
         stage = _point(lv, lat_goal, stage_depth, high)
         off = max(float(np.linalg.norm((stage - p)[:2])), abs(stage[2] - p[2]))
-        turning = _tilt(s) > 0.3 and off < 0.12  # already swinging round: finish the turn
+        turning = hand_tilt(s) > 0.3 and off < 0.12  # already swinging round: finish the turn
         if off > 0.05 and not turning:
             if p[2] < high - 0.03 and lv.depth(p) > stage_depth - 0.02:
-                return Step(_act(s, np.array([*p[:2], high]), CLOSE, finger, DOWN))
-            return Step(_act(s, stage, CLOSE, finger, DOWN))
-        if _misalign(s, finger) > TURNED:  # first the finger axis across, still pointing down
-            return Step(_act(s, stage, CLOSE, finger, DOWN))
+                return Step(act(s, np.array([*p[:2], high]), CLOSE, finger, DOWN))
+            return Step(act(s, stage, CLOSE, finger, DOWN))
+        if misalign(s, finger) > TURNED:  # first the finger axis across, still pointing down
+            return Step(act(s, stage, CLOSE, finger, DOWN))
         # Then tip over slowly: a fast swing flings a 14 cm book out of a pinch at its edge.
-        action = _act_pose(s, stage, CLOSE, finger, point, cap=0.5)
+        action = act_pose(s, stage, CLOSE, finger, point, cap=0.5)
         action[3:6] *= min(1.0, TURN_RATE / (np.abs(action[3:6]).max() + 1e-9))
         return Step(action)
     # Turned: the object's underside just above the floor, its box centred across the opening.
@@ -171,17 +172,17 @@ def place_under_roof(s: SceneState, obj: str, target: str, knobs) -> Step:
     if far_end < 0.0:
         # Outside: line up in front of the opening (the far end clear of its plane), then in.
         if abs(lat_err) < LINED_UP and abs(dz) < LINED_UP:
-            return Step(_act_pose(s, _point(lv, lat_goal, goal_depth, z_goal), CLOSE, finger, point, cap=0.5))
+            return Step(act_pose(s, _point(lv, lat_goal, goal_depth, z_goal), CLOSE, finger, point, cap=0.5))
         # Line up close to the opening: the wrist, 22 cm behind the fingers, then stays clear
         # of whatever stands on the table further out.
         depth = -(ahead + LINE_UP_GAP)
-        return Step(_act_pose(s, _point(lv, lat_goal, depth, z_goal), CLOSE, finger, point, cap=0.5))
+        return Step(act_pose(s, _point(lv, lat_goal, depth, z_goal), CLOSE, finger, point, cap=0.5))
     if abs(lat_err) > OFF_LINE or abs(dz) > OFF_LINE:
         # Off line while going in: back straight out.
         back = _point(lv, lv.lateral(p), -(ahead + 0.03), p[2])
-        return Step(_act_pose(s, back, CLOSE, finger, point, cap=0.5))
+        return Step(act_pose(s, back, CLOSE, finger, point, cap=0.5))
     if goal_depth - lv.depth(p) > 0.006:
-        return Step(_act_pose(s, _point(lv, lat_goal, goal_depth, z_goal), CLOSE, finger, point, cap=0.5))
+        return Step(act_pose(s, _point(lv, lat_goal, goal_depth, z_goal), CLOSE, finger, point, cap=0.5))
     return Step(hold(OPEN))
 
 
@@ -201,9 +202,9 @@ def _retreat(s: SceneState, lv: Level) -> Step:
     p = s.eef_pos
     if s.gripper_width < OPEN_WIDTH:
         return Step(hold(OPEN))
-    if lv.depth(p) > -BACK_OUT and _tilt(s) > UPRIGHT_TOL:
-        return Step(_act_pose(s, _point(lv, lv.lateral(p), -BACK_OUT - 0.02, p[2]), OPEN, lv.across, lv.inward, cap=0.5))
+    if lv.depth(p) > -BACK_OUT and hand_tilt(s) > UPRIGHT_TOL:
+        return Step(act_pose(s, _point(lv, lv.lateral(p), -BACK_OUT - 0.02, p[2]), OPEN, lv.across, lv.inward, cap=0.5))
     high = max(lv.ceiling, s.table_z) + RISE_TO
-    if p[2] < high - 0.02 or _tilt(s) > UPRIGHT_TOL:
-        return Step(_act(s, np.array([*p[:2], high]), OPEN, None, DOWN))
+    if p[2] < high - 0.02 or hand_tilt(s) > UPRIGHT_TOL:
+        return Step(act(s, np.array([*p[:2], high]), OPEN, None, DOWN))
     return Step(hold(OPEN), done=True)

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from seal.policies.expert import pan
+from seal.policies.expert.motion import path_top, yaw_error
 from seal.policies.expert.skills import (
     CLOSE,
     HAND_HALF,
@@ -29,8 +30,6 @@ from seal.policies.expert.skills import (
     Z_TOL,
     Knobs,
     Step,
-    _path_top,
-    _yaw_error,
     carry,
     hold,
     let_go_and_rise,
@@ -132,7 +131,7 @@ def slide_in(s: SceneState, obj: str, target: str, knobs: Knobs) -> Step:
     stage = at(lateral, -(ahead + STAGE_GAP), z_in)
     goal = at(lateral, depth, z_in)
     # The handle points out of the shelf: the finger axis across it runs along the opening.
-    yaw_err = _yaw_error(s, float(np.arctan2(lv.along[1], lv.along[0])))
+    yaw_err = yaw_error(s, float(np.arctan2(lv.along[1], lv.along[0])))
 
     def to(obj_goal: np.ndarray) -> np.ndarray:
         return s.eef_pos + (obj_goal - p)  # the hand's goal for an object goal
@@ -144,7 +143,7 @@ def slide_in(s: SceneState, obj: str, target: str, knobs: Knobs) -> Step:
         if off > 0.03:
             reach = float(np.max(body.size[:2])) / 2 + 0.02
             below = s.eef_pos[2] - body.lo[2]
-            carry_z = max(to(stage)[2], _path_top(s, s.eef_pos[:2], to(stage)[:2], obj, reach) + below + 0.04)
+            carry_z = max(to(stage)[2], path_top(s, s.eef_pos[:2], to(stage)[:2], obj, reach) + below + 0.04)
             if s.eef_pos[2] < carry_z - 0.03:
                 return _upright(s, body, move(s.eef_pos, np.array([*s.eef_pos[:2], carry_z]), CLOSE, yaw_err))
             return _upright(s, body, carry(s.eef_pos, np.array([*to(stage)[:2], carry_z]), yaw_err))

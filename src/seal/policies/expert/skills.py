@@ -17,10 +17,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from seal.policies.expert import pan
+from seal.policies.expert.motion import (HOME_YAW, POS_GAIN, YAW_GAIN, finger_yaw, holder_of, horizontal_frame,
+                                         path_top, wrap, yaw_error)
 from seal.sim.scene import Body, SceneState
 
-POS_GAIN = 20.0  # action per metre of position error (saturates at 5 cm)
-YAW_GAIN = 2.0  # action per radian of yaw error
 CARRY_GAIN = 10.0  # horizontal action per metre while carrying (saturates at 10 cm)
 OPEN, CLOSE = -1.0, 1.0
 HOVER = 0.10  # clearance above an object before descending onto it
@@ -97,40 +97,6 @@ def carry(eef: np.ndarray, goal: np.ndarray, yaw_err: float = 0.0) -> np.ndarray
 
 def hold(gripper: float) -> np.ndarray:
     return np.array([0, 0, 0, 0, 0, 0, gripper], dtype=np.float64)
-
-
-def _wrap(angle: float) -> float:
-    """Into [-pi/2, pi/2): a parallel gripper is symmetric under a half turn."""
-    return (angle + np.pi / 2) % np.pi - np.pi / 2
-
-
-# The wrist's last joint turns the finger axis about 1:1 and stops at +-2.9 rad; its middle
-# is at a finger yaw of ~2.4 (measured: q7 = 0), the home pose at ~pi/2 (q7 = pi/4). Near
-# the table the wrist's other joints drift along with it, so big turns run into the stops
-# and the arm stalls. Finger yaws are therefore kept within a quarter turn (plus a margin)
-# of home, and never wrapped through the far side where the stops are.
-HOME_YAW = np.pi / 2
-WRIST_MID_YAW = 2.4
-YAW_WINDOW = np.pi / 2 + 0.25
-
-
-def _wrist_yaw(s: SceneState) -> float:
-    """The finger yaw unwrapped around the wrist's mid-range (continuous over its travel)."""
-    return (_finger_yaw(s) - WRIST_MID_YAW + np.pi) % (2 * np.pi) - np.pi + WRIST_MID_YAW
-
-
-def _yaw_error(s: SceneState, yaw: float) -> float:
-    """Signed turn onto ``yaw`` or its half-turn twin: of the twins within the window around
-    home, the one nearer the current yaw (so the choice does not flip near the window's edge).
-    """
-    now = _wrist_yaw(s)
-    base = HOME_YAW + _wrap(yaw - HOME_YAW)
-    twins = [t for t in (base - np.pi, base, base + np.pi) if abs(t - HOME_YAW) <= YAW_WINDOW]
-    return float(min(twins, key=lambda t: abs(t - now)) - now)
-
-
-def _finger_yaw(s: SceneState) -> float:
-    return float(np.arctan2(s.finger_axis[1], s.finger_axis[0]))
 
 
 def _axes(body: Body) -> tuple[np.ndarray, np.ndarray]:
@@ -240,8 +206,8 @@ def _round_candidates(s: SceneState, body: Body) -> list[tuple[np.ndarray, float
     a finger off a neighbouring can. (Fixed, so that a target does not move as the hand turns.)
     """
     point = np.array([*body.center[:2], _box_grasp_z(s, body)])
-    yaws = [_finger_yaw(s)] + [HOME_YAW + k * np.pi / 6 for k in range(-3, 3)]
-    return [(point, yaw, 0.03 * abs(_yaw_error(s, yaw))) for yaw in yaws]
+    yaws = [finger_yaw(s)] + [HOME_YAW + k * np.pi / 6 for k in range(-3, 3)]
+    return [(point, yaw, 0.03 * abs(yaw_error(s, yaw))) for yaw in yaws]
 
 
 def _box_candidates(s: SceneState, body: Body) -> list[tuple[np.ndarray, float, float]]:
@@ -252,7 +218,7 @@ def _box_candidates(s: SceneState, body: Body) -> list[tuple[np.ndarray, float, 
     is the object's at the height they close (a bottle's cap, not its body)."""
     centre = body.center
     z = _box_grasp_z(s, body)
-    yaw0, ext = _horizontal_frame(body)
+    yaw0, ext = horizontal_frame(body)
     narrow, wide = (0.0, np.pi / 2) if ext[0] <= ext[1] else (np.pi / 2, 0.0)
     out = []
     for turn, cost in ((narrow, 0.0), (wide, 0.05)):
@@ -270,20 +236,6 @@ def _box_candidates(s: SceneState, body: Body) -> list[tuple[np.ndarray, float, 
     if not out:  # wider than the open hand both ways: try anyway, across the narrow side
         out.append((np.array([*centre[:2], z]), yaw0 + narrow, 0.0))
     return out
-
-
-def _horizontal_frame(body: Body) -> tuple[float, np.ndarray]:
-    """(yaw of the object's first horizontal local axis, its extents along that axis and the
-    other horizontal one). Objects whose local z is vertical give (body.yaw, ext[:2]); others
-    (LIBERO's bottles stand along local y) give their real horizontal sides."""
-    w, x, y, z = body.quat
-    rot = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                    [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                    [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
-    up = int(np.argmax(np.abs(rot[2])))
-    i, j = [k for k in range(3) if k != up]
-    ext = body.local_hi - body.local_lo
-    return float(np.arctan2(rot[1, i], rot[0, i])), np.array([ext[i], ext[j]])
 
 
 def _slice_width(body: Body, yaw: float, z: float) -> float | None:
@@ -361,7 +313,7 @@ def _rim_candidates(s: SceneState, name: str, body: Body) -> list[tuple[np.ndarr
         yaw = float(np.arctan2(side[1], side[0]))
         near = 0.01 * np.linalg.norm(xy - s.eef_pos[:2])  # tie-break: the nearer side
         if i >= 2:
-            near += RIM_TURN_COST * abs(_yaw_error(s, yaw))  # a wrist turn, only if it helps
+            near += RIM_TURN_COST * abs(yaw_error(s, yaw))  # a wrist turn, only if it helps
         if round_bowl:
             # Far out from the robot (it stands at -x) the arm is nearly straight: its elbow
             # locks and it cannot lift what it holds.
@@ -376,13 +328,13 @@ def pick(s: SceneState, name: str, knobs: Knobs, by_handle: bool = False) -> Ste
         if body.lo[2] < s.table_z + 0.04:
             # Held under an overhang (grasped after `_slide_under`): back out from under it
             # first, just off the table, then lift.
-            out = _overhang_entry(s, name, body, s.eef_pos, _finger_yaw(s))
+            out = _overhang_entry(s, name, body, s.eef_pos, finger_yaw(s))
             if out is not None:
                 return Step(move(s.eef_pos, np.array([*out[:2], s.eef_pos[2]]) + [0, 0, 0.005], CLOSE))
         return _lift_by_handle(s, body) if pan.is_pan(name) else _lift(s, body)
     by_handle = (by_handle and handle(name, body) is not None) or pan.is_pan(name)
     point, yaw = grasp_pose(s, name, knobs, by_handle)
-    yaw_err = _yaw_error(s, yaw)
+    yaw_err = yaw_error(s, yaw)
     err = point - s.eef_pos
     xy_err = float(np.linalg.norm(err[:2]))
     # A pinched cup wall is only a few millimetres thick, as thin as an empty grip: for rim
@@ -413,7 +365,7 @@ def pick(s: SceneState, name: str, knobs: Knobs, by_handle: bool = False) -> Ste
         if step is not None:
             return step
     # Hover above the grasp, high enough that the fingertips pass over whatever lies between.
-    over = _path_top(s, s.eef_pos[:2], point[:2], name, FINGER_SPAN[1]) + FINGERTIP_BELOW + 0.02
+    over = path_top(s, s.eef_pos[:2], point[:2], name, FINGER_SPAN[1]) + FINGERTIP_BELOW + 0.02
     hover = np.array([point[0], point[1], max(point[2] + HOVER, body.hi[2] + 0.05, over)])
     # Descend once lined up; once on the way down (below hover) tolerate a little more drift,
     # which the descent corrects, instead of bouncing back up.
@@ -478,7 +430,7 @@ def _slide_under(s: SceneState, name: str, body: Body, point: np.ndarray, entry:
     at_entry = float(np.linalg.norm(entry[:2] - s.eef_pos[:2]))
     if at_entry < 0.015 and abs(yaw_err) < YAW_TOL and s.eef_pos[2] > entry[2] - 0.015:
         return Step(move(s.eef_pos, entry, OPEN, yaw_err))  # down beside it
-    over = _path_top(s, s.eef_pos[:2], entry[:2], name, FINGER_SPAN[1]) + FINGERTIP_BELOW + 0.02
+    over = path_top(s, s.eef_pos[:2], entry[:2], name, FINGER_SPAN[1]) + FINGERTIP_BELOW + 0.02
     hover = np.array([entry[0], entry[1], max(entry[2] + HOVER, over)])
     if s.eef_pos[2] < hover[2] - 0.03 and at_entry > 0.03:
         return Step(move(s.eef_pos, np.array([*s.eef_pos[:2], hover[2]]), OPEN, yaw_err))
@@ -520,8 +472,8 @@ def _grip_width(name: str, body: Body, yaw: float, z: float | None = None) -> fl
         width = _slice_width(body, yaw, z)
         if width is not None:
             return width
-    yaw0, hext = _horizontal_frame(body)
-    return float(hext[0] if abs(_wrap(yaw - yaw0)) < np.pi / 4 else hext[1])
+    yaw0, hext = horizontal_frame(body)
+    return float(hext[0] if abs(wrap(yaw - yaw0)) < np.pi / 4 else hext[1])
 
 
 def _lift(s: SceneState, body: Body) -> Step:
@@ -601,12 +553,12 @@ def _slot_yaw(s: SceneState, obj: str, target: str) -> float:
     current yaw for an object about as wide as long)."""
     body = s.bodies[obj]
     ext = (body.local_hi - body.local_lo)[:2]
-    now = _finger_yaw(s)
+    now = finger_yaw(s)
     if abs(ext[0] - ext[1]) < 0.15 * min(ext):
         return now
     narrow = body.yaw + (0.0 if ext[0] <= ext[1] else np.pi / 2)
     want = 0.0 if _slot_axis(s, target) == 0 else np.pi / 2
-    return now + _wrap(want - narrow)
+    return now + wrap(want - narrow)
 
 
 def place(s: SceneState, obj: str, target: str, knobs: Knobs, slot: tuple[int, int] | None = None) -> Step:
@@ -623,7 +575,7 @@ def place(s: SceneState, obj: str, target: str, knobs: Knobs, slot: tuple[int, i
     # origin (On: within 3 cm of the support's origin), and a rim-held mug hangs several
     # centimetres off the hand.
     below = s.eef_pos[2] - body.lo[2]  # how far the object hangs below the gripper centre
-    if is_tall(body) and target.endswith("contain_region") and _holder(s, target) is not None:
+    if is_tall(body) and target.endswith("contain_region") and holder_of(s, target) is not None:
         bottom = min(bottom, _lowered_bottom(s, target, below))
     release_z = bottom + below + knobs.release_early
     drawer = _drawer_joint(s, target)
@@ -635,12 +587,12 @@ def place(s: SceneState, obj: str, target: str, knobs: Knobs, slot: tuple[int, i
                               yaws=None if slot is None else (_slot_yaw(s, obj, target),))
     off = goal - body.pos[:2]
     goal_xy = s.eef_pos[:2] + off
-    yaw_err = _yaw_error(s, yaw)
+    yaw_err = yaw_error(s, yaw)
     # Carry the object's bottom, and the hand, over everything on the way (the target's own
     # rim included).
     reach = float(np.max(body.size[:2])) / 2 + 0.02
-    carry_z = max(release_z, _path_top(s, s.eef_pos[:2], goal_xy, obj, reach) + below + 0.04,
-                  _path_top(s, s.eef_pos[:2], goal_xy, obj, HAND_HALF[0]) - HAND_ABOVE + 0.01)
+    carry_z = max(release_z, path_top(s, s.eef_pos[:2], goal_xy, obj, reach) + below + 0.04,
+                  path_top(s, s.eef_pos[:2], goal_xy, obj, HAND_HALF[0]) - HAND_ABOVE + 0.01)
     dist = np.linalg.norm(off)
     if dist > 0.04:  # far: rise to carrying height, then travel
         if s.eef_pos[2] < carry_z - 0.03:
@@ -654,7 +606,7 @@ def place(s: SceneState, obj: str, target: str, knobs: Knobs, slot: tuple[int, i
     # Off-centre, the object's bottom stays above everything near its way to the goal (a
     # basket's rim, a compartment's walls), so it cannot catch on an edge; once down there,
     # a little more drift (a swinging load) is settled in place instead of rising again.
-    clear_z = _path_top(s, body.pos[:2], goal, obj, reach) + below + 0.015
+    clear_z = path_top(s, body.pos[:2], goal, obj, reach) + below + 0.015
     low = s.eef_pos[2] < clear_z - 0.01
     if np.any(np.abs(off) > (1.5 * tol if low else tol)) or abs(yaw_err) > YAW_TOL:
         return Step(carry(s.eef_pos, np.array([*goal_xy, max(release_z, clear_z)]), yaw_err))
@@ -681,19 +633,13 @@ def _lowered_bottom(s: SceneState, target: str, below: float) -> float:
     where the next object then has no room."""
     site = s.sites[target]
     floor = site.pos[2] - float((np.abs(site.xmat) @ site.size)[2])
-    rim = float(s.bodies[_holder(s, target)].hi[2])
+    rim = float(s.bodies[holder_of(s, target)].hi[2])
     return max(floor + 0.01, rim + 0.005 - HAND_ABOVE - below)
-
-
-def _holder(s: SceneState, target: str) -> str | None:
-    """The fixture or object a region belongs to (a cabinet, a basket), None for a table region."""
-    owner = max((n for n in s.bodies if target.startswith(n + "_")), key=len, default=None)
-    return None if owner is None or owner.endswith("_table") else owner
 
 
 def _footprint(body: Body) -> np.ndarray:
     """World-frame (x, y) extent of an upright object, whatever its yaw: its widest horizontal side."""
-    return np.full(2, float(np.max(_horizontal_frame(body)[1])))
+    return np.full(2, float(np.max(horizontal_frame(body)[1])))
 
 
 def let_go_and_rise(s: SceneState, body: Body) -> Step:
@@ -735,7 +681,7 @@ def _release_pose(s: SceneState, obj: str, target: str, xy: np.ndarray, release_
     where the arm stalls. ``yaws``: only these yaws, at ``xy`` itself (a slot of a shared region).
     """
     body = s.bodies[obj]
-    now = _finger_yaw(s)
+    now = finger_yaw(s)
     hang = body.pos[:2] - s.eef_pos[:2]  # the object's origin relative to the hand
     if yaws is None and _drawer_joint(s, target) is not None:
         return _drawer_release_pose(s, obj, target, xy, release_z)
@@ -743,7 +689,7 @@ def _release_pose(s: SceneState, obj: str, target: str, xy: np.ndarray, release_
     if yaws is None and target in s.sites and not target.endswith("contain_region"):
         site = s.sites[target]
         half = (np.abs(site.xmat) @ site.size)[:2] - 0.02
-        if _holder(s, target) is not None:
+        if holder_of(s, target) is not None:
             # Inside a fixture (a drawer, a shelf): the whole object must fit, not just its origin,
             # or it lands on a wall and tilts (a tilted bowl then jams the drawer).
             half = (np.abs(site.xmat) @ site.size)[:2] - _footprint(body) / 2 - 0.01
@@ -751,7 +697,7 @@ def _release_pose(s: SceneState, obj: str, target: str, xy: np.ndarray, release_
                   for dx in (-1, 0, 1) for dy in (-1, 0, 1) if dx or dy]
     best, best_cost = (xy, now), np.inf
     for yaw in yaws or (now, 0.0, np.pi / 2, np.pi / 4, -np.pi / 4):
-        turn = _yaw_error(s, yaw)
+        turn = yaw_error(s, yaw)
         c, si = np.cos(turn), np.sin(turn)
         turned = np.array([c * hang[0] - si * hang[1], si * hang[0] + c * hang[1]])
         for spot, cost in spots:
@@ -779,8 +725,8 @@ def _drawer_release_pose(s: SceneState, obj: str, target: str, xy: np.ndarray,
     the fingers land on it). Here the cabinet counts only up to the closed drawer's front."""
     body = s.bodies[obj]
     a = _drawer_joint(s, target)
-    owner = _holder(s, target)
-    now = _finger_yaw(s)
+    owner = holder_of(s, target)
+    now = finger_yaw(s)
     hang = body.pos[:2] - s.eef_pos[:2]
     site = s.sites[target]
     half = np.maximum((np.abs(site.xmat) @ site.size)[:2] - _footprint(body) / 2 - 0.01, 0.0)
@@ -797,7 +743,7 @@ def _drawer_release_pose(s: SceneState, obj: str, target: str, xy: np.ndarray,
     spots = [xy + np.array([fx, fy]) * half for fx in (-1.0, 0.0, 1.0) for fy in (-1.0, 0.0, 1.0)]
     best, best_cost = (xy, now), np.inf
     for yaw in (now, 0.0, np.pi / 2, np.pi / 4, -np.pi / 4):
-        turn = _yaw_error(s, yaw)
+        turn = yaw_error(s, yaw)
         c, si = np.cos(turn), np.sin(turn)
         turned = np.array([c * hang[0] - si * hang[1], si * hang[0] + c * hang[1]])
         axis = np.array([np.cos(yaw), np.sin(yaw)])
@@ -824,15 +770,3 @@ def _xy_corners(box) -> np.ndarray:
     return np.array([[x, y] for x in (box.lo[0], box.hi[0]) for y in (box.lo[1], box.hi[1])])
 
 
-def _path_top(s: SceneState, start: np.ndarray, end: np.ndarray, own: str, reach: float) -> float:
-    """Top of the tallest other object within ``reach`` of the straight path start -> end."""
-    ts = np.linspace(0.0, 1.0, 12)[:, None]
-    path = start[None] + ts * (end - start)[None]
-    top = s.table_z
-    for n, b in s.bodies.items():
-        if n == own or b.lo[2] > s.table_z + 0.3:  # shelves and wall fixtures are out of reach
-            continue
-        inside = np.all((path >= b.lo[:2] - reach) & (path <= b.hi[:2] + reach), axis=1)
-        if inside.any():
-            top = max(top, b.hi[2])
-    return top

@@ -18,8 +18,9 @@ from __future__ import annotations
 import numpy as np
 
 from seal.policies.expert.articulated import Opening, opening
+from seal.policies.expert.motion import path_top, yaw_error
 from seal.policies.expert.skills import (CLOSE, HAND_HALF, OPEN, YAW_TOL, Z_TOL, Knobs,
-                                         Step, _path_top, _yaw_error, carry, hold, let_go_and_rise, move)
+                                         Step, carry, hold, let_go_and_rise, move)
 from seal.sim.scene import SceneState
 
 ENTRY_CLEARANCE = 0.03  # the object's bottom this far above the region's floor while going in
@@ -73,7 +74,7 @@ def place_inside(s: SceneState, obj: str, target: str, knobs: Knobs) -> Step:
     goal = o.point(lateral, depth, z_in)
 
     # The hand's long side along the doorway (the finger axis across a handle that points out).
-    yaw_err = _yaw_error(s, float(np.arctan2(o.along[1], o.along[0])))
+    yaw_err = yaw_error(s, float(np.arctan2(o.along[1], o.along[0])))
 
     def to(obj_goal: np.ndarray) -> np.ndarray:
         return s.eef_pos + (obj_goal - p)  # the hand's goal for an object goal
@@ -99,8 +100,8 @@ def place_inside(s: SceneState, obj: str, target: str, knobs: Knobs) -> Step:
         low = body.lo[2] < floor + ENTRY_CLEARANCE + 0.05
         if off > (0.06 if low else 0.03):
             reach = float(np.max(body.size[:2])) / 2 + 0.02
-            carry_z = max(to(stage)[2], _path_top(s, s.eef_pos[:2], to(stage)[:2], obj, reach) + below + 0.04,
-                          _path_top(s, s.eef_pos[:2], to(stage)[:2], obj, HAND_HALF[0]) - 0.012)
+            carry_z = max(to(stage)[2], path_top(s, s.eef_pos[:2], to(stage)[:2], obj, reach) + below + 0.04,
+                          path_top(s, s.eef_pos[:2], to(stage)[:2], obj, HAND_HALF[0]) - 0.012)
             if s.eef_pos[2] < carry_z - 0.03:
                 return upright(move(s.eef_pos, np.array([*s.eef_pos[:2], carry_z]), CLOSE, yaw_err))
             return upright(carry(s.eef_pos, np.array([*to(stage)[:2], carry_z]), yaw_err))

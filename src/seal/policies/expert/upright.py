@@ -21,9 +21,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from seal.policies.expert.skills import (CLOSE, HAND_ABOVE, OPEN, YAW_TOL, Z_TOL, Knobs, Step, _finger_yaw,
-                                         _holder, _path_top, _wrap, _yaw_error, carry, hold, let_go_and_rise,
-                                         move)
+from seal.policies.expert.motion import finger_yaw, holder_of, path_top, wrap, yaw_error
+from seal.policies.expert.skills import (CLOSE, HAND_ABOVE, OPEN, YAW_TOL, Z_TOL, Knobs, Step, carry, hold,
+                                         let_go_and_rise, move)
 from seal.sim.scene import Body, SceneState
 
 SLAB_THIN = 0.4  # thickness / width below this: a slab (a book), not a box
@@ -47,7 +47,7 @@ def standing_in(s: SceneState, obj: str, target: str | None) -> bool:
     """Whether ``obj`` is a standing slab going into a compartment of a holder (caddy, basket)."""
     if target is None or obj not in s.bodies or target not in s.sites or not target.endswith("contain_region"):
         return False
-    if _holder(s, target) is None:
+    if holder_of(s, target) is None:
         return False
     return is_standing_slab(s.bodies[obj])
 
@@ -74,13 +74,13 @@ def _target(s: SceneState, body: Body, half: np.ndarray) -> tuple[float, np.ndar
     The wide side goes along the compartment's long side, or across a square one's diagonal
     (a 12 cm square takes an 11 cm book along a side with 7 mm to spare, along its
     diagonal with 1.8 cm); of equally good ways, the smaller wrist turn."""
-    now = _finger_yaw(s)
+    now = finger_yaw(s)
     wide = _wide_yaw(body)
     best = None
     for angle in (0.0, np.pi / 2, np.pi / 4, -np.pi / 4):
         room = _slack(body, half, angle)
-        yaw = now + _wrap(angle - wide)
-        score = float(np.min(room)) - 0.002 * abs(_yaw_error(s, yaw))
+        yaw = now + wrap(angle - wide)
+        score = float(np.min(room)) - 0.002 * abs(yaw_error(s, yaw))
         if best is None or score > best[0]:
             best = (score, yaw, room)
     return best[1], np.clip(best[2], MIN_TOL, 0.02)
@@ -92,9 +92,9 @@ def place_standing(s: SceneState, obj: str, target: str, knobs: Knobs) -> Step:
         return let_go_and_rise(s, body)
     site = s.sites[target]
     half = np.abs(site.xmat) @ site.size
-    holder = s.bodies[_holder(s, target)]
+    holder = s.bodies[holder_of(s, target)]
     yaw, tol = _target(s, body, half)
-    yaw_err = _yaw_error(s, yaw)
+    yaw_err = yaw_error(s, yaw)
 
     below = s.eef_pos[2] - body.lo[2]  # how far the book hangs below the gripper centre
     floor = site.pos[2] - half[2]
@@ -107,7 +107,7 @@ def place_standing(s: SceneState, obj: str, target: str, knobs: Knobs) -> Step:
     dist = float(np.linalg.norm(off))
     if dist > 0.04:  # far: rise over everything on the way, then travel
         reach = float(np.max(body.size[:2])) / 2 + 0.02
-        carry_z = max(over_z, _path_top(s, s.eef_pos[:2], goal_xy, obj, reach) + below + 0.04)
+        carry_z = max(over_z, path_top(s, s.eef_pos[:2], goal_xy, obj, reach) + below + 0.04)
         if s.eef_pos[2] < carry_z - 0.03:
             return Step(move(s.eef_pos, np.array([*s.eef_pos[:2], carry_z]), CLOSE, yaw_err))
         return Step(carry(s.eef_pos, np.array([*goal_xy, carry_z]), yaw_err))
