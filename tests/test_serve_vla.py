@@ -169,7 +169,8 @@ def test_value_method_with_the_vla_twin(ckpts, tmp_path, value_size):
     from test_train_value import _bandit
 
     from seal.steer.build import build_episode
-    from seal.train.vgps import IQLConfig, VGPSScorer, train_value
+    from seal.train.vgps import IQLConfig, train_value
+    from seal.value.vgps import VGPSScorer
 
     torch.manual_seed(0)
     train_value(_bandit(64, 0), tmp_path / "vgps", IQLConfig(steps=2, batch_size=16, hidden=16), image_size=value_size)

@@ -15,7 +15,8 @@ import torch  # noqa: E402  (a test extra: a missing torch is a broken install, 
 
 from seal.train.pipeline import split_episodes  # noqa: E402
 from seal.train.transitions import Transitions, episode_transitions  # noqa: E402
-from seal.train.vgps import IQLConfig, VGPSScorer, goal_tokens, train_value  # noqa: E402
+from seal.train.vgps import IQLConfig, train_value  # noqa: E402
+from seal.value.vgps import VGPSScorer, goal_tokens  # noqa: E402
 
 
 def test_transitions_reward_the_chunk_that_reaches_each_goal():
@@ -131,7 +132,7 @@ def test_value_function_from_a_64px_dataset_scores_the_policy_view(tmp_path):
     from seal.datasets.lerobot import LeRobotWriter
     from seal.sim.observation import Observation
     from seal.steer.selection import ValueSelection
-    from seal.train.transitions import downsample
+    from seal.value.inputs import downsample
 
     def small(images):
         return np.stack([np.asarray(Image.fromarray(im).resize((64, 64), Image.BOX)) for im in images])

@@ -33,7 +33,8 @@ def _random_transitions(n: int):
 def run(args) -> dict:
     from seal.sim.observation import Observation
     from seal.train.pipeline import train_value_on_dataset
-    from seal.train.vgps import IQLConfig, VGPSScorer, train_value
+    from seal.train.vgps import IQLConfig, train_value
+    from seal.value.vgps import VGPSScorer
 
     k = args.k
     out: dict = {}

@@ -31,7 +31,8 @@ def split_episodes(n: int, holdout: float, seed: int) -> tuple[list[int], list[i
 def train_value_on_dataset(dataset: Path, out: Path, *, goals: str, holdout: float, cfg,
                            progress=None) -> dict:
     from seal.datasets import open_dataset
-    from seal.train.vgps import evaluate_value, load_scorer_nets, train_value
+    from seal.train.vgps import evaluate_value, train_value
+    from seal.value.vgps import load_scorer_nets
 
     if goals not in GOAL_KINDS:
         raise InvalidInput(f"unknown --goals {goals!r}; valid: {', '.join(GOAL_KINDS)}")

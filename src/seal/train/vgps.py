@@ -1,4 +1,4 @@
-"""V-GPS value function: an IQL-trained Q(image, state, goal text, action chunk), in one file.
+"""V-GPS training: the value function (`seal.value.vgps`) fitted offline by IQL, in one file.
 
 The baseline the paper compares against (pi0-V-GPS) samples K action chunks and executes the one
 a Q-function rates highest. The Q-function is learned offline with Implicit Q-Learning (IQL):
@@ -6,17 +6,16 @@ a Q-function rates highest. The Q-function is learned offline with Implicit Q-Le
     V(s, g)    <- expectile_tau of  min_i Q_target_i(s, a, g)          (never queries unseen actions)
     Q_i(s,a,g) <- r + gamma * (1 - done) * V(s', g)
 
-Everything here is sized for a CPU: a 56x56 agent view through a three-layer CNN, the 8-d
-state, the executed chunk (5 x 7), and the goal text as hashed word/bigram buckets averaged
-by an EmbeddingBag (no pretrained language model can be downloaded here; words never seen in
-training land in untrained buckets, which is exactly the OOD weakness the paper points out).
+Everything is sized for a CPU: a 56x56 agent view through a three-layer CNN, the 8-d state, the
+executed chunk (5 x 7) and the goal text as hashed word/bigram buckets (the network and its
+inputs: `seal.value`).
 
 `train_value` writes, every ``save_every`` updates, the scorer's checkpoint (``value.safetensors``
-+ ``value.json`` + ``manifest.json``, `seal.checkpoint`) and the training state (``checkpoint.pt``:
-target networks, optimizer, generators; tensors and plain values only, read with
-``weights_only=True``), each atomically, and a metrics JSONL as it goes; running it again on the
-same directory continues from them. `VGPSScorer` loads a checkpoint (checked against its manifest)
-and implements the steering engine's `ChunkScorer`.
++ ``value.json`` + ``manifest.json``, `seal.value.vgps.save_scorer`) and the training state
+(``checkpoint.pt``: target networks, optimizer, generators; tensors and plain values only, read
+with ``weights_only=True``), each atomically, and a metrics JSONL as it goes; running it again on
+the same directory continues from them. `seal.value.vgps.VGPSScorer` loads the checkpoint for the
+steering loop.
 """
 
 from __future__ import annotations
@@ -24,23 +23,19 @@ from __future__ import annotations
 import copy
 import hashlib
 import json
-import re
 import time
-import zlib
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
-from seal.checkpoint import atomic_write, verify, write_manifest
+from seal.checkpoint import atomic_write
 from seal.errors import InvalidInput
-from seal.policies.base import ACTION_HORIZON
-from seal.steer.scoring import VALUE_CONFIG, VALUE_FILES, VALUE_KIND, VALUE_WEIGHTS, value_directory
-from seal.train.transitions import IMAGE_SIDE, Transitions, chunk_of, downsample
+from seal.train.transitions import Transitions
+from seal.value.vgps import ValueNets, goal_batch, save_scorer
 
 try:
     import torch
-    from torch import nn
     from torch.nn import functional as F
 except ImportError as exc:  # torch is an extra: the steering loop itself never needs it
     raise ImportError("V-GPS training and scoring need PyTorch: pip install -e '.[train]' "
@@ -48,7 +43,6 @@ except ImportError as exc:  # torch is an extra: the steering loop itself never 
 
 CHECKPOINT = "checkpoint.pt"
 METRICS = "metrics.jsonl"
-GOAL_BUCKETS = 4096
 
 
 @dataclass(frozen=True)
@@ -67,61 +61,6 @@ class IQLConfig:
     seed: int = 0
     save_every: int = 500
     log_every: int = 50
-
-
-def goal_tokens(text: str) -> list[int]:
-    """Hashed lower-case words and word bigrams -> bucket ids (stable across processes: crc32)."""
-    words = re.findall(r"[a-z0-9]+", text.lower())
-    grams = words + [f"{a} {b}" for a, b in zip(words, words[1:])]
-    return [zlib.crc32(g.encode()) % GOAL_BUCKETS for g in grams] or [0]
-
-
-def _goal_batch(texts: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
-    """EmbeddingBag inputs (flat ids, offsets) for a batch of goal texts."""
-    ids, offsets = [], []
-    for t in texts:
-        offsets.append(len(ids))
-        ids.extend(goal_tokens(t))
-    return torch.tensor(ids, dtype=torch.long), torch.tensor(offsets, dtype=torch.long)
-
-
-class Encoder(nn.Module):
-    """(image, state, goal) -> feature vector shared by the Q and V heads."""
-
-    def __init__(self, cfg: IQLConfig):
-        super().__init__()
-        self.conv = nn.Sequential(
-            nn.Conv2d(3, 32, 5, stride=2), nn.ReLU(),   # 56 -> 26
-            nn.Conv2d(32, 64, 3, stride=2), nn.ReLU(),  # 26 -> 12
-            nn.Conv2d(64, 64, 3, stride=2), nn.ReLU(),  # 12 -> 5
-            nn.Flatten(), nn.Linear(64 * 5 * 5, cfg.hidden), nn.LayerNorm(cfg.hidden), nn.Tanh())
-        self.goal = nn.EmbeddingBag(GOAL_BUCKETS, cfg.goal_dim, mode="mean")
-        self.out_dim = cfg.hidden + 8 + cfg.goal_dim
-
-    def forward(self, image: torch.Tensor, state: torch.Tensor, goal: tuple[torch.Tensor, torch.Tensor]):
-        x = image.permute(0, 3, 1, 2).float() / 255.0
-        return torch.cat([self.conv(x), state, self.goal(*goal)], dim=-1)
-
-
-def _mlp(inp: int, hidden: int) -> nn.Module:
-    return nn.Sequential(nn.Linear(inp, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(),
-                         nn.Linear(hidden, 1))
-
-
-class ValueNets(nn.Module):
-    """One encoder, two Q heads (clipped double Q) and a V head."""
-
-    def __init__(self, cfg: IQLConfig):
-        super().__init__()
-        self.encoder = Encoder(cfg)
-        act_dim = 7 * ACTION_HORIZON
-        self.q1 = _mlp(self.encoder.out_dim + act_dim, cfg.hidden)
-        self.q2 = _mlp(self.encoder.out_dim + act_dim, cfg.hidden)
-        self.v = _mlp(self.encoder.out_dim, cfg.hidden)
-
-    def q(self, feat: torch.Tensor, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        x = torch.cat([feat, action], dim=-1)
-        return self.q1(x).squeeze(-1), self.q2(x).squeeze(-1)
 
 
 def _random_shift(images: torch.Tensor, pad: int, gen: torch.Generator) -> torch.Tensor:
@@ -168,7 +107,7 @@ def _batch(data: Transitions, idx: np.ndarray, cfg: IQLConfig, gen: torch.Genera
         image, next_image = _random_shift(image, cfg.shift, gen), _random_shift(next_image, cfg.shift, gen)
     return {"image": image, "next_image": next_image,
             "state": torch.from_numpy(data.state[idx]), "next_state": torch.from_numpy(data.next_state[idx]),
-            "action": torch.from_numpy(data.action[idx]), "goal": _goal_batch([data.goal[i] for i in idx]),
+            "action": torch.from_numpy(data.action[idx]), "goal": goal_batch([data.goal[i] for i in idx]),
             "reward": torch.from_numpy(data.reward[idx]), "done": torch.from_numpy(data.done[idx])}
 
 
@@ -200,7 +139,7 @@ def train_value(data: Transitions, out: Path, cfg: IQLConfig, *, progress=None, 
     out.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(cfg.seed)
     fingerprint = data_fingerprint(data)
-    nets = ValueNets(cfg)
+    nets = ValueNets(cfg.hidden, cfg.goal_dim)
     target = copy.deepcopy(nets).requires_grad_(False)
     opt = torch.optim.Adam(nets.parameters(), lr=cfg.lr)
     rng = np.random.default_rng(cfg.seed)
@@ -247,63 +186,6 @@ def _save(path: Path, obj: dict) -> None:
     atomic_write(path, lambda p: torch.save(obj, p))  # a crash mid-write leaves the previous one intact
 
 
-def save_scorer(out: Path, nets: ValueNets, meta: dict) -> None:
-    """The scorer's checkpoint in ``out``: weights, their config (``meta``), the manifest last."""
-    from safetensors.torch import save_file
-
-    (out / "manifest.json").unlink(missing_ok=True)  # no manifest = no checkpoint, until this one is complete
-    state = {k: v.detach().contiguous().cpu() for k, v in nets.state_dict().items()}
-    atomic_write(out / VALUE_WEIGHTS, lambda p: save_file(state, str(p), metadata={"format": VALUE_KIND}))
-    atomic_write(out / VALUE_CONFIG, lambda p: p.write_text(json.dumps(meta, indent=1)))
-    write_manifest(out, kind=VALUE_KIND, files=list(VALUE_FILES), extra={"step": meta["step"], "data": meta["data"]})
-
-
-def load_scorer_nets(path: str | Path) -> tuple[ValueNets, dict]:
-    """(networks in eval mode, their config) from a checkpoint directory, checked against its manifest."""
-    from safetensors import SafetensorError
-    from safetensors.torch import load_file
-
-    path = value_directory(path)
-    verify(path, kind=VALUE_KIND, required=VALUE_FILES)
-    try:
-        meta = json.loads((path / VALUE_CONFIG).read_text())
-        nets = ValueNets(IQLConfig(**meta["config"]))
-    except (ValueError, TypeError, KeyError) as exc:
-        raise InvalidInput(f"{path / VALUE_CONFIG} describes no V-GPS model: {exc}") from None
-    try:
-        nets.load_state_dict(load_file(str(path / VALUE_WEIGHTS)))
-    except (SafetensorError, RuntimeError) as exc:
-        raise InvalidInput(f"{path / VALUE_WEIGHTS} does not fit {VALUE_CONFIG}: {exc}") from None
-    return nets.eval(), meta
-
-
-class VGPSScorer:
-    """`ChunkScorer` over a trained checkpoint: Q(obs, chunk, goal), the min of the two heads."""
-
-    needs_images = True
-
-    def __init__(self, nets: ValueNets, source: str = "", image_size: int = 224):
-        self.nets = nets.eval()
-        self.source = source
-        self.image_size = image_size  # the agent view it was trained on (checkpoints before this field: 224)
-
-    @classmethod
-    def load(cls, path: str | Path) -> VGPSScorer:
-        nets, meta = load_scorer_nets(path)
-        return cls(nets, source=str(value_directory(path)), image_size=int(meta.get("image_size", 224)))
-
-    @torch.no_grad()
-    def score(self, obs, chunks: np.ndarray, goal: str) -> np.ndarray:
-        if obs.agent is None:
-            raise InvalidInput("the V-GPS scorer needs the agent-view image; observe with images=True")
-        k = len(chunks)
-        image = torch.from_numpy(downsample(obs.agent))[None].expand(k, IMAGE_SIDE, IMAGE_SIDE, 3)
-        state = torch.as_tensor(np.asarray(obs.state, dtype=np.float32))[None].expand(k, 8)
-        action = torch.from_numpy(np.stack([chunk_of(c) for c in chunks]))
-        feat = self.nets.encoder(image, state, _goal_batch([goal] * k))
-        return torch.min(*self.nets.q(feat, action)).numpy()
-
-
 @torch.no_grad()
 def evaluate_value(nets: ValueNets, data: Transitions, cfg: IQLConfig, batch: int = 256) -> dict:
     """How well Q on the recorded chunks tracks the true discounted return (held-out data).
@@ -323,7 +205,7 @@ def evaluate_value(nets: ValueNets, data: Transitions, cfg: IQLConfig, batch: in
         qs.append(torch.min(*nets.q(nets.encoder(b["image"], b["state"], b["goal"]), b["action"])).numpy())
         other = [goals[(goals.index(data.goal[i]) + 1 + rng.integers(len(goals) - 1)) % len(goals)]
                  if len(goals) > 1 else data.goal[i] for i in idx]
-        feat = nets.encoder(b["image"], b["state"], _goal_batch(other))
+        feat = nets.encoder(b["image"], b["state"], goal_batch(other))
         swapped.append(torch.min(*nets.q(feat, b["action"])).numpy())
     nets.train()
     q, q_other = np.concatenate(qs), np.concatenate(swapped)
