@@ -20,7 +20,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from seal.benchmarks import trials_of
+from seal.benchmarks.common import trials_of
 from seal.eval.execute import RunOptions
 from seal.eval.runner import run_eval
 from seal.eval.store import ResultStore

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from seal.benchmarks import trials_of
+from seal.benchmarks.common import trials_of
 from seal.errors import InvalidInput
 from seal.sim.suites import get_task, parse_task_ids
 

@@ -18,7 +18,7 @@ import copy
 import mujoco
 import numpy as np
 
-from seal.benchmarks import median_ms
+from seal.benchmarks.common import median_ms
 from seal.benchmarks.sim import psnr
 from seal.errors import InvalidInput
 from seal.sim.observation import AGENT_CAMERA, WRIST_CAMERA

@@ -42,7 +42,7 @@ def run(args) -> dict:
     from seal.sim.world import LiberoWorld
     from seal.steer.method import MethodSpec
 
-    from seal.benchmarks import trials_of
+    from seal.benchmarks.common import trials_of
 
     k, reps = args.k, max(5, min(trials_of(args, "serve"), 200))
     spec = get_task(args.suite, args.task)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from seal.benchmarks import median_ms
+from seal.benchmarks.common import median_ms
 from seal.sim.observation import AGENT_CAMERA, IMAGE_SIZE, RENDER_SIZE, WRIST_CAMERA, to_policy_image
 from seal.sim.package_path import package_frames
 from seal.sim.pool import EnvPool

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from seal.benchmarks import trials_of
+from seal.benchmarks.common import trials_of
 from seal.errors import InvalidInput
 
 DEFAULT_FP = (0.0, 0.1, 0.2, 0.4)

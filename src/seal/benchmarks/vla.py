@@ -46,7 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
-from seal.benchmarks import median_ms
+from seal.benchmarks.common import median_ms
 
 ROLLOUT_EPISODE0 = 1000  # rollout starts: start_seed(task, 1000 + e); recordings use episodes below 1000
 
