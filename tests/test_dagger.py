@@ -176,3 +176,148 @@ def test_recording_workers_leave_ctrl_c_to_the_parent(runner):
 
     with multiprocessing.get_context("spawn").Pool(1, initializer=ignore_interrupts) as pool:
         assert pool.apply(signal.getsignal, (signal.SIGINT,)) == signal.SIG_IGN
+
+
+# ---- verification cases from the same rollouts (`--verifier-cases`, issue 32) ----------------------------------
+CASES_TASK, CASES_STEPS = 0, 95  # soup and sauce into the basket: by step 90 the VLA has picked and placed the soup
+
+
+@pytest.fixture(scope="module")
+def with_cases():
+    """The same DAgger episode run without and with verification cases, the world's exact state captured
+    at every case (the held-versus-released one included, taken after the rollout)."""
+    ckpt = str(resolve_checkpoint("reason"))
+    plain = dagger.run_dagger_episode(dagger.DaggerJob("libero_10", CASES_TASK, 0, 1, ckpt, 0.5, "fast", 64, CASES_STEPS))
+    snaps = []
+    original = dagger.VerifierCaseTaker._case
+
+    def capturing(self, request, **kw):
+        snaps.append(self.world.snapshot())
+        return original(self, request, **kw)
+
+    dagger.VerifierCaseTaker._case = capturing
+    try:
+        job = dagger.DaggerJob("libero_10", CASES_TASK, 0, 1, ckpt, 0.5, "fast", 64, CASES_STEPS, verifier_cases=True)
+        taken = dagger.run_dagger_episode(job)
+    finally:
+        dagger.VerifierCaseTaker._case = original
+    world = dagger._CACHE.pop("world")
+    dagger.release_cached()
+    yield plain, taken, snaps, world
+    world.close()
+
+
+def test_taking_verifier_cases_leaves_the_rollout_and_its_dagger_data_unchanged(with_cases):
+    (_, a0, e0, r0), (_, a1, e1, r1), _, _ = with_cases
+    cases = a1.pop(dagger.CASES_KEY)
+    assert cases["rows"] and dagger.CASES_KEY not in a0
+    assert a0 == a1 and e0.meta == e1.meta and len(r0) == len(r1)
+    for x, y in zip(r0, r1):
+        assert x.keys() == y.keys() and all(np.array_equal(x[k], y[k]) for k in x)
+    for name in ("agent_images", "wrist_images", "states", "actions"):
+        assert np.array_equal(getattr(e0, name), getattr(e1, name)), name
+    a1[dagger.CASES_KEY] = cases
+
+
+def test_every_verifier_case_label_is_the_oracles_at_that_exact_state(with_cases):
+    from seal.verify import dataset as ds
+    from seal.verify.base import VerifyRequest
+    from seal.verify.oracle import OracleVerifier
+
+    _, (_, attempt, _, _), snaps, world = with_cases
+    rows = attempt[dagger.CASES_KEY]["rows"]
+    assert len(rows) == len(snaps) and attempt[dagger.CASES_KEY]["unknown"] == 0
+    by = {r["ended_by"]: r for r in rows}
+    # what this rollout of the shipped VLA does: picks the soup (a think case), places it (think), and the
+    # place's last closed-gripper boundary, the soup still held above the basket, is the paired hard negative
+    assert [(r["ended_by"], r["kind"], r["label"]) for r in rows] == [
+        ("think", "pick", True), ("think", "place", True), ("before_release", "place", False)]
+    pair, placed = by["before_release"], rows[1]
+    assert pair["subplan"] == placed["subplan"] and pair["first_agent"] == placed["first_agent"]
+    assert pair["final_wrist"] != placed["final_wrist"] and pair["steps"] < placed["steps"]
+    for row, snap in zip(rows, snaps):
+        assert row["init_source"] == "fresh-train" and row["policy"] == "vla" and row["init_seed"] == attempt["start_seed"]
+        # the label, recomputed from the world restored to that state by a fresh oracle
+        world.restore(snap)
+        oracle = OracleVerifier()
+        scene = world.scene_state()
+        objects = sorted(set(scene.bodies) | set(scene.sites))
+        req = VerifyRequest(subplan=row["subplan"], instruction=row["instruction"], plans=tuple(row["plans"]),
+                            index=None if row["subplan_index"] < 0 else row["subplan_index"],
+                            goal_atoms=tuple(row["atoms"]) if row["kind"] == "task" else ())
+        req.scene = world.scene_state(oracle.atoms_needed(req, objects))
+        verdict = oracle.judge(req)
+        assert verdict.success is row["label"] and verdict.extra["atoms"] == row["atoms"], row["case_id"]
+        # ...and from the stored case, as `seal bench verifier` reads it
+        case = ds.Case(dict(row), tuple(ds.decode_png(row[c]) for c in ds.IMAGE_COLUMNS))
+        assert OracleVerifier().judge(ds.to_request(case)).success is row["label"]
+        # the final views are that state's 224-px views, pixel for pixel (the pair's, rendered after the rollout, too)
+        assert case.images[1].shape == (224, 224, 3)
+        assert np.array_equal(case.images[1], world.observe(images=True).agent)
+
+
+def test_task_level_cases_are_labelled_on_the_tasks_goal(tmp_path):
+    """A task-level case (the VLA's 'the task is complete', or where LIBERO's check first holds): the
+    instruction judged on the task's goal atoms, with the episode's first view as 'before'."""
+    from seal.sim.world import LiberoWorld
+    from seal.policies.base import Reasoning
+    from seal.verify import dataset as ds
+    from seal.verify.oracle import OracleVerifier
+
+    world = LiberoWorld(("libero_10", 5), render_mode="fast")
+    try:
+        world.reset_sampled(dagger.dagger_seed(world.task.key, 1, 0))
+        job = dagger.DaggerJob("libero_10", 5, 0, 1, "x", 0.0, "fast", 64, verifier_cases=True)
+        taker = dagger.VerifierCaseTaker(world, job, 7)
+        plans = ("pick up the book", "place it in the back compartment of the caddy")
+        taker.begin(Reasoning(plans, (), plans[0]))
+        taker.declared_done(Reasoning(plans, plans, ""))  # the VLA says done at once: the book is not in the caddy
+        out = taker.finish()
+    finally:
+        world.close()
+    (row,) = out["rows"]
+    assert row["kind"] == "task" and row["ended_by"] == "vla_done" and row["subplan"] == row["instruction"]
+    assert row["atoms"] == [str(a) for a in world.task.goal_atoms()] and row["label"] is False
+    assert row["first_agent"] == row["final_agent"]  # nothing moved: the first view is the final one
+    case = ds.Case(row, tuple(ds.decode_png(row[c]) for c in ds.IMAGE_COLUMNS))
+    assert ds.to_request(case).task_level and OracleVerifier().judge(ds.to_request(case)).success is False
+
+
+def test_a_round_writes_verifier_cases_once_and_they_train_beside_others(tmp_path, capsys):
+    from _verifier_cases import write_cases
+
+    from seal.benchmarks.verifier import score
+    from seal.policies.vla.locate import checkpoint_digest
+    from seal.verify import dataset as ds
+    from seal.verify.oracle import OracleVerifier
+
+    out, cases = tmp_path / "dagger", tmp_path / "cases"
+    argv = ["demos", "dagger", "--tasks", str(TASK), "--episodes-per-task", "1", "--max-steps", "45",
+            "--beta", "0.5", "--no-teacher-check", "--verifier-cases", str(cases), "--out", str(out)]
+    assert main(argv) == 0
+    first = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert first["recorded"] == 1 and first["verifier_cases"] == 1  # the book picked up at step 40
+    shard = cases / "data" / ds.shard_name("libero_10", TASK, 0)
+    stamp = shard.stat().st_mtime_ns
+    assert "verifier_cases" not in (out / "attempts.jsonl").read_text()  # the DAgger log is as without cases
+    assert main(argv) == 0  # again: nothing to do, nothing written twice
+    again = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert again["skipped"] == 1 and again["verifier_cases"] == 0 and shard.stat().st_mtime_ns == stamp
+    assert len(ds.shard_paths(cases)) == 1 and ds.read_cases(cases).num_rows == 1
+    info = ds.read_info(cases)
+    assert "task" in info["kinds"]
+    collection = info["collection"]
+    assert collection["policy"] == "vla" and collection["vla_ckpt_digest"] == checkpoint_digest("reason")
+    assert collection["counts"]["cases"] == 1 and collection["render_mode"] == "fast"
+    # another collection's settings into the same cases directory: refused before anything runs
+    other = argv[:-4] + ["--round", "2", "--verifier-cases", str(cases), "--out", str(tmp_path / "r2")]
+    assert main(other) == 2 and "other settings" in capsys.readouterr().err and not (tmp_path / "r2").exists()
+    assert score(OracleVerifier(), cases)["accuracy"] == 1.0  # `seal bench verifier` reads them
+
+    # `seal train verifier --data A,B`: these cases beside cases in the older layout
+    synthetic = write_cases(tmp_path / "synthetic", 24, tasks=("libero_10/0",), inits=6)
+    run = tmp_path / "verifier"
+    assert main(["train", "verifier", "--data", f"{synthetic},{cases}", "--steps", "2", "--batch-size", "8",
+                 "--image-size", "32", "--holdout-inits", "0", "--out", str(run)]) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["step"] == 2 and summary["split"]["train"] == 25

@@ -104,7 +104,8 @@ def _cmd_dagger(args) -> int:
         summary = collect_dagger(args.suite, Path(args.out), ckpt=args.ckpt, episodes_per_task=args.episodes_per_task,
                                  round_=args.round, beta=args.beta, tasks=tasks, workers=args.workers,
                                  render_mode=args.render, max_steps=args.max_steps,
-                                 teacher_check=args.teacher_check, progress=progress)
+                                 teacher_check=args.teacher_check, verifier_cases=args.verifier_cases,
+                                 progress=progress)
     print(json.dumps(summary.__dict__))
     return 0
 
@@ -663,6 +664,10 @@ def _add_demos(sub) -> None:
                      help="after each rollout, let the expert finish alone from one of its states: how often the "
                           "teacher's labels lead somewhere (default on; ~10 s of physics per rollout)")
     dag.add_argument("--workers", type=_COUNT, default=1, help="episodes in parallel (one simulator each)")
+    dag.add_argument("--verifier-cases", default=None, metavar="DIR",
+                     help="also write verification cases from the VLA's own states here, labelled by the oracle "
+                          "(its sub-plan ends, its 'task complete', held-versus-released places; for `seal train "
+                          "verifier --data`). Off by default; the rollouts and the DAgger data are the same either way")
     dag.add_argument("--out", required=True)
     dag.set_defaults(func=_cmd_dagger)
     rep = demos_sub.add_parser("dagger-report", help="figures of a DAgger collection (all its episodes so far) and "

@@ -25,12 +25,19 @@ layout whose per-episode label files carry, per frame, the expert's reasoning te
 the think label, the validity and the whole expert chunk. `seal train vla --annotations
 DEMOS_ANN,OUT/annotations --mix ...` trains on both. Resumable like `seal demos record`: every
 attempt is logged, and the same command continues where it stopped.
+
+With ``verifier_cases`` (``--verifier-cases DIR``) the same rollouts also yield verification cases
+(`seal.verify.dataset` layout) from the VLA's own states, labelled by the oracle: see
+`VerifierCaseTaker`. Off by default; on or off, the rollout and what the DAgger dataset records are
+the same (the cases only read the world, render 224-px views on a renderer of their own, and take no
+random draw).
 """
 
 from __future__ import annotations
 
 import json
 import multiprocessing
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -47,6 +54,11 @@ ATTEMPTS = "attempts.jsonl"
 DATASET_DIR = "dataset"
 ANNOTATIONS_DIR = "annotations"
 BACKEND = "dagger"
+# where `run_dagger_episode` hands a rollout's verification cases to the collector: a key of the attempt
+# dict, popped before the attempt is logged (callers that unpack four values, `seal bench vla`, stay as
+# they are, and no image bytes reach attempts.jsonl)
+CASES_KEY = "_verifier_cases"
+CASES_SOURCE = "fresh-train"  # DAgger starts are fresh sampled starts of a namespace of their own
 
 
 def dagger_seed(task_key: str, round_: int, episode: int) -> int:
@@ -70,6 +82,7 @@ class DaggerJob:
     max_steps: int | None = None
     start_seed: int | None = None  # None: this round's own start (`dagger_seed`); held-out checks pass theirs
     teacher_check: bool = False  # also let the expert finish alone from one boundary (`teacher_recovers`)
+    verifier_cases: bool = False  # also take verification cases from the VLA's states (`VerifierCaseTaker`)
 
 
 @dataclass
@@ -144,6 +157,10 @@ def run_dagger_episode(job: DaggerJob) -> tuple[DaggerJob, dict, Episode | None,
     obs = world.observe(images=job.image_size, privileged_atoms=atoms)
     mine = vla.reason(obs)
     vla.begin(1)
+    taker = VerifierCaseTaker(world, job, seed) if job.verifier_cases else None
+    if taker is not None:
+        taker.begin(mine)
+    grip_closed = False  # the gripper command in force (the last executed action's): the reset leaves it open
     ended, executed = "steps", {"vla": 0, "expert": 0}
     sim_error = False
     # the boundary the teacher check starts from: the first at or after a step drawn in advance
@@ -163,8 +180,12 @@ def run_dagger_episode(job: DaggerJob) -> tuple[DaggerJob, dict, Episode | None,
                              "vla_reasoning": mine.text(), "vla_now": mine.now, "think": bool(think),
                              "valid": label.valid, "why": label.why, "chunk": label.chunk.reshape(-1),
                              "step": world.steps})
+            if taker is not None:
+                taker.boundary(grip_closed)
             if mine.finished:  # the VLA declared the task done while it is not: a label, and the end
                 ended = "vla_done"
+                if taker is not None:
+                    taker.declared_done(mine)
                 break
             if label.valid and mix.random() < job.beta:
                 actions = label.chunk[:ACTION_HORIZON]
@@ -172,8 +193,12 @@ def run_dagger_episode(job: DaggerJob) -> tuple[DaggerJob, dict, Episode | None,
             else:
                 chunk = vla.act([obs], mine)[0]
                 if chunk.think:
+                    if taker is not None:  # the VLA believes its sub-plan done: where SEAL asks the verifier
+                        taker.end_subplan(grip_closed)
                     mine = vla.reason(obs)
                     vla.begin(1)
+                    if taker is not None:
+                        taker.begin(mine)
                     if mine.finished:
                         continue  # recorded at the next boundary (same state) with its new text
                     chunk = vla.act([obs], mine)[0]
@@ -181,6 +206,7 @@ def run_dagger_episode(job: DaggerJob) -> tuple[DaggerJob, dict, Episode | None,
                 executed["vla"] += 1
             for i, action in enumerate(actions):
                 world.step(action)
+                grip_closed = float(action[-1]) > 0  # LIBERO's gripper command: -1 open, +1 close
                 last = i == len(actions) - 1
                 obs = world.observe(images=job.image_size if last else False, privileged_atoms=atoms)
                 if world.success() or world.steps >= max_steps:
@@ -190,6 +216,8 @@ def run_dagger_episode(job: DaggerJob) -> tuple[DaggerJob, dict, Episode | None,
     success = bool(world.success()) and not sim_error
     if success:
         ended = "success"
+        if taker is not None:  # before anything below moves the world (the teacher check restores a snapshot)
+            taker.solved()
     held = [] if sim_error else list(world.goal_status().values())
     attempt = {"suite": job.suite, "task_id": job.task_id, "init_index": job.episode, "round": job.round,
                "start_seed": seed, "success": success, "steps": world.steps, "ended": ended, "frames": len(rec.rows),
@@ -216,7 +244,174 @@ def run_dagger_episode(job: DaggerJob) -> tuple[DaggerJob, dict, Episode | None,
                                              "ended": ended, "executed": executed,
                                              "frame_steps": [r["step"] for r in rec.rows]},
               "reasoning": [[r["step"], r["reasoning"]] for r in rec.rows]})
+    if taker is not None:  # last: its held-versus-released cases restore earlier states of the world
+        attempt[CASES_KEY] = taker.finish()
     return job, attempt, episode, rec.rows
+
+
+@dataclass
+class _Span:
+    """One sub-plan the VLA acted on, from the boundary where it wrote it."""
+
+    reasoning: Reasoning
+    first_agent: np.ndarray  # 224-px agent view when it began
+    number: int  # 1-based count of sub-plans begun in the episode
+    start: int  # control step it began at
+    held: object = None  # snapshot of its latest boundary with the gripper commanded closed
+    held_step: int = -1
+
+
+class VerifierCaseTaker:
+    """Verification cases from one DAgger rollout: the VLA's own states, labelled by the oracle.
+
+    The learned verifier had seen almost only expert-like states and calls many of the VLA's failures
+    successes (issue 32). A DAgger rollout passes through exactly the states SEAL asks a verifier about
+    when it steers this VLA, so each rollout also yields, in `seal.verify.dataset`'s layout:
+
+    - ``think``: whenever the VLA's act says its sub-plan is done (the moment SEAL would ask the
+      verifier): first view when that sub-plan began, final views now, the VLA's own ``now`` and plans;
+    - ``vla_done``: when the VLA declares the task complete, a task-level case (the instruction, the
+      task's goal atoms, the episode's first view as "before"); SEAL's done check asks this;
+    - ``task_success``: the same task-level question where LIBERO's check first holds. A DAgger
+      episode ends there, so every ``vla_done`` case is a failure; without these the task kind would
+      have no positive at all;
+    - ``before_release``: hard negatives on purpose. At a ``think`` case the oracle labels a successful
+      place, the latest earlier boundary of that sub-plan at which the gripper was still commanded
+      closed (if it was open at the end): the held-versus-released pair, with the wrist view showing
+      the grip. Its state is restored from a snapshot after the rollout and rendered then, so the
+      rollout renders 224-px views only at the moments above. Labelled by the oracle like the rest
+      (an object held inside its target is in it; usually it is still above it).
+
+    Every label is the oracle's on the privileged scene at that state; a sub-plan the oracle cannot
+    ground (garbled text) gives no case and is counted as unknown. The taker only reads the world
+    (snapshots, scene facts, renders on a renderer of its own: 256 px resized to openpi's 224) and
+    draws nothing at random, so the rollout is the same with it and without it.
+    """
+
+    def __init__(self, world, job: DaggerJob, seed: int):
+        from seal.verify.oracle import OracleVerifier
+
+        t0 = time.perf_counter()
+        self.world, self.job = world, job
+        self.oracle = OracleVerifier()
+        scene = world.scene_state()
+        self.objects = sorted(set(scene.bodies) | set(scene.sites))
+        self.base = {"suite": job.suite, "task_id": job.task_id, "task": world.task.key, "init_source": CASES_SOURCE,
+                     "init_index": job.episode, "init_seed": int(seed), "episode": job.episode, "seed": int(seed),
+                     "policy": "vla", "knobs": BACKEND, "instruction": world.instruction}
+        self.rows: list[dict] = []
+        self.unknown = 0
+        self.errors = 0
+        self.renders = 0
+        self.span: _Span | None = None
+        self.number = 0
+        self.pending: list[tuple[_Span, dict]] = []  # held-versus-released cases, rendered after the rollout
+        self._last: tuple[int, object] | None = None  # (step, 224-px observation): one render per state
+        self.first = self._views()  # the episode's first agent view ("before" of task-level cases)
+        self.seconds = time.perf_counter() - t0
+
+    def _views(self):
+        if self._last is None or self._last[0] != self.world.steps:
+            self._last = (self.world.steps, self.world.observe(images=True))  # openpi's 224-px view, as SEAL's loop
+            self.renders += 1
+        return self._last[1]
+
+    def _case(self, request, *, ended_by: str, number: int, steps: int) -> dict | None:
+        """Label ``request`` at the world's current state and keep it (None: the oracle cannot tell)."""
+        from seal.verify import dataset as ds
+
+        views = self._views()
+        request.final_agent, request.final_wrist = views.agent, views.wrist
+        request.scene = self.world.scene_state(self.oracle.atoms_needed(request, self.objects))
+        verdict = self.oracle.judge(request)
+        if verdict.success is None:
+            self.unknown += 1
+            return None
+        b = self.base
+        case_id = f"{b['task']}:dagger{self.job.round}:{b['episode']}:s{number}:{ended_by}:{self.world.steps}"
+        row = ds.case_row(b, request, verdict, case_id=case_id, subplan_number=number, round=0, candidate=0,
+                          steps=steps, ended_by=ended_by)
+        self.rows.append(row)
+        return row
+
+    def _request(self, span: _Span):
+        from seal.verify.base import VerifyRequest
+
+        r = span.reasoning
+        return VerifyRequest(subplan=r.now, instruction=self.world.instruction, plans=tuple(r.plans), index=r.index,
+                             first_agent=span.first_agent, task=self.world.task.key)
+
+    def _task_request(self, plans):
+        from seal.verify.base import VerifyRequest
+
+        instruction = self.world.instruction
+        return VerifyRequest(subplan=instruction, instruction=instruction, plans=tuple(plans),
+                             first_agent=self.first.agent, task=self.world.task.key,
+                             goal_atoms=tuple(str(a) for a in self.world.goal_atoms))
+
+    def _guarded(self, fn, *args) -> None:
+        # A case that cannot be taken (a scene fact the simulator refuses to check) is counted, never
+        # allowed to end or alter the rollout it rides on.
+        t0 = time.perf_counter()
+        try:
+            fn(*args)
+        except SealError:
+            self.errors += 1
+        finally:
+            self.seconds += time.perf_counter() - t0
+
+    def begin(self, reasoning: Reasoning) -> None:
+        """The VLA has written ``reasoning`` at this boundary: its sub-plan starts here."""
+        def run():
+            if reasoning.finished:
+                self.span = None
+                return
+            first = self.first.agent if self.number == 0 else self._views().agent
+            self.number += 1
+            self.span = _Span(reasoning, first, self.number, self.world.steps)
+        self._guarded(run)
+
+    def boundary(self, closed: bool) -> None:
+        """A chunk boundary; ``closed``: the gripper command in force here."""
+        def run():
+            if self.span is not None and closed:
+                self.span.held, self.span.held_step = self.world.snapshot(), self.world.steps
+        self._guarded(run)
+
+    def end_subplan(self, closed: bool) -> None:
+        """The VLA's act says its sub-plan is done (it will reason again)."""
+        def run():
+            span, self.span = self.span, None
+            if span is None:
+                return
+            row = self._case(self._request(span), ended_by="think", number=span.number,
+                             steps=self.world.steps - span.start)
+            # a place the oracle says holds, released during the sub-plan: its last held state too
+            if (row is not None and row["label"] and row["kind"] == "place" and not closed
+                    and span.held is not None and span.held_step < self.world.steps):
+                self.pending.append((span, row))
+        self._guarded(run)
+
+    def declared_done(self, reasoning: Reasoning) -> None:
+        self._guarded(lambda: self._case(self._task_request(reasoning.plans), ended_by="vla_done",
+                                         number=self.number, steps=self.world.steps))
+
+    def solved(self) -> None:
+        plans = self.span.reasoning.plans if self.span is not None else ()
+        self._guarded(lambda: self._case(self._task_request(plans), ended_by="task_success", number=self.number,
+                                         steps=self.world.steps))
+
+    def finish(self) -> dict:
+        """The held-versus-released cases (restoring the world to each held state), then everything."""
+        def pair(span: _Span):
+            self.world.restore(span.held)
+            self._last = None
+            self._case(self._request(span), ended_by="before_release", number=span.number,
+                       steps=self.world.steps - span.start)
+        for span, _ in self.pending:
+            self._guarded(pair, span)
+        return {"rows": self.rows, "unknown": self.unknown, "errors": self.errors, "renders": self.renders,
+                "seconds": round(self.seconds, 3)}
 
 
 def teacher_recovers(world, snap, budget: int) -> dict:
@@ -292,6 +487,8 @@ class DaggerSummary:
     vla_done_early: int = 0
     teacher_checks: int = 0  # rollouts where the expert was let to finish alone from one boundary
     teacher_recovered: int = 0  # ...and reached the goal
+    verifier_cases: int = 0  # with --verifier-cases: cases written by this run
+    verifier_case_seconds: float = 0.0  # ...and the wall time spent taking them (renders, oracle, PNGs)
 
 
 def _attempted(root: Path) -> set[tuple[str, int, int]]:
@@ -307,8 +504,11 @@ def _attempted(root: Path) -> set[tuple[str, int, int]]:
 
 def collect_dagger(suite: str, out: Path, *, ckpt: str, episodes_per_task: int, round_: int = 1, beta: float = 0.0,
                    tasks: list[int] | None = None, workers: int = 1, render_mode: str | None = None,
-                   max_steps: int | None = None, teacher_check: bool = True, progress=None) -> DaggerSummary:
-    """Roll out ``ckpt`` on fresh starts and label every chunk boundary with the expert (resumable)."""
+                   max_steps: int | None = None, teacher_check: bool = True, verifier_cases: Path | str | None = None,
+                   progress=None) -> DaggerSummary:
+    """Roll out ``ckpt`` on fresh starts and label every chunk boundary with the expert (resumable).
+    ``verifier_cases``: a directory that also receives the rollouts' verification cases, one shard per
+    recorded rollout (`VerifierCaseTaker`; docs/dagger.md)."""
     from seal.annotate.pipeline import ANNOTATIONS, INFO, LABELS_PATH, CHUNK_SIZE
     from seal.policies.vla.locate import checkpoint_digest, resolve_checkpoint, trained_render
     from seal.policies.vla.checkpoint import read_config
@@ -341,6 +541,9 @@ def collect_dagger(suite: str, out: Path, *, ckpt: str, episodes_per_task: int, 
         if saved != settings:
             raise InvalidInput(f"{out} was collected with other settings ({saved}); resume it with the same "
                                f"--ckpt/--round/--beta/--render, or collect into a new directory")
+    cases_dir = None if verifier_cases is None else Path(verifier_cases)
+    if cases_dir is not None:
+        _check_cases_dir(cases_dir, settings)  # before any output exists, like the check above
     out.mkdir(parents=True, exist_ok=True)
     ann.mkdir(parents=True, exist_ok=True)
     if not info_path.is_file():
@@ -354,13 +557,26 @@ def collect_dagger(suite: str, out: Path, *, ckpt: str, episodes_per_task: int, 
             todo = [e for e in range(episodes_per_task) if (suite, spec.task_id, e) not in attempted]
             summary.skipped += episodes_per_task - len(todo)
             jobs += [DaggerJob(suite, spec.task_id, e, round_, str(where), float(beta), render, config.image_size,
-                               max_steps, teacher_check=teacher_check) for e in todo]
+                               max_steps, teacher_check=teacher_check, verifier_cases=cases_dir is not None)
+                     for e in todo]
         jobs.sort(key=lambda j: (j.episode, tasks.index(j.task_id)))  # every task about equally, early on
         if progress:
             progress(summary, len(jobs) + summary.skipped, advance=summary.skipped)
 
+        if cases_dir is not None:
+            _write_cases_info(cases_dir, settings, out, where, digest, render)
+
         def finish(job: DaggerJob, attempt: dict, episode: Episode | None, rows: list[dict]) -> None:
+            cases = attempt.pop(CASES_KEY, None)
             if episode is not None:
+                if cases_dir is not None and cases is not None:
+                    # First, so a crash before the episode commits (its labels and attempt line) runs it again
+                    # and replaces this same shard: one shard per recorded rollout, never a case twice.
+                    from seal.verify import dataset as ds
+
+                    ds.write_shard(cases_dir, ds.shard_name(job.suite, job.task_id, job.episode), cases["rows"])
+                    summary.verifier_cases += len(cases["rows"])
+                    summary.verifier_case_seconds = round(summary.verifier_case_seconds + cases["seconds"], 3)
                 index = writer.add(episode)
                 _write_labels(ann, index, episode, rows, LABELS_PATH, CHUNK_SIZE, ANNOTATIONS)
                 summary.recorded += 1
@@ -390,7 +606,59 @@ def collect_dagger(suite: str, out: Path, *, ckpt: str, episodes_per_task: int, 
                 for result in pool.imap_unordered(run_dagger_episode, jobs, chunksize=1):
                     finish(*result)
     (out / "dagger_summary.json").write_text(json.dumps(summarize(out) | {"settings": settings}, indent=2) + "\n")
+    if cases_dir is not None:
+        _write_cases_info(cases_dir, settings, out, where, digest, render, counts=True)
     return summary
+
+
+def _cases_settings(settings: dict) -> dict:
+    return {"source": BACKEND, **settings}
+
+
+def _check_cases_dir(cases_dir: Path, settings: dict) -> None:
+    """One cases directory per DAgger collection: its shards are named by (suite, task, episode) alone,
+    so cases of another round, checkpoint or beta would overwrite them."""
+    from seal.verify import dataset as ds
+
+    if (cases_dir / "info.json").is_file():
+        saved = ds.read_info(cases_dir).get("collection", {}).get("settings", {})
+        if saved != _cases_settings(settings):
+            raise InvalidInput(f"{cases_dir} holds verification cases made with other settings ({saved}); give each "
+                               "DAgger collection a --verifier-cases directory of its own")
+    elif cases_dir.is_dir() and any(cases_dir.iterdir()):
+        raise InvalidInput(f"{cases_dir} is not empty and holds no verification cases (no info.json); "
+                           "give --verifier-cases a new directory")
+
+
+def _write_cases_info(cases_dir: Path, settings: dict, out: Path, where, digest: str, render: str, *,
+                      counts: bool = False) -> None:
+    """info.json of a DAgger collection's verification cases: what made them (the VLA's checkpoint and
+    digest: a verifier trained on them names the policy whose states it saw) and, at the end of a run,
+    counts over every shard so far (``counts``)."""
+    from seal.verify import dataset as ds
+
+    info = {"settings": _cases_settings(settings), "dagger_out": str(Path(out).resolve()), "policy": "vla",
+            "vla_ckpt": str(where), "vla_ckpt_digest": digest,
+            # the pixels' render model, the VLA's own (as `seal verify collect` records it for a learned VLA)
+            "render_mode": render,
+            "init_sources": {CASES_SOURCE: "DAgger starts: fresh sampled starts of the round's own seed namespace "
+                                           "(seal.dagger.dagger_seed); init_index is the DAgger episode, init_seed "
+                                           "the start's seed"},
+            "cases": "think (the VLA's sub-plan end), vla_done and task_success (task-level), before_release "
+                     "(a successful place's last closed-gripper state); every label the oracle's"}
+    if (cases_dir / "info.json").is_file():
+        old = ds.read_info(cases_dir).get("collection", {})
+        info = {"counts": old["counts"]} | info if "counts" in old else info
+    if counts:
+        table = ds.read_cases(cases_dir, columns=["kind", "ended_by", "label"]).to_pydict()
+        by: dict[str, dict[str, int]] = {}
+        for key in ("kind", "ended_by"):
+            for value, label in zip(table[key], table["label"]):
+                cell = by.setdefault(key, {}).setdefault(value, {"success": 0, "failure": 0})
+                cell["success" if label else "failure"] += 1
+        info["counts"] = {"shards": len(ds.shard_paths(cases_dir)), "cases": len(table["label"]),
+                          "success": sum(table["label"]), "failure": len(table["label"]) - sum(table["label"]), **by}
+    ds.write_info(cases_dir, {"collection": info})
 
 
 def summarize(out: Path) -> dict:

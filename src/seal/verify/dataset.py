@@ -35,7 +35,10 @@ VERSION = 1
 IMAGE_SIZE = 224
 IMAGE_COLUMNS = ("first_agent", "final_agent", "final_wrist")
 DEMO_SOURCE = "demo"  # init_source of cases replayed from demonstrations (`seal.verify.demo_cases`)
-KINDS = ("pick", "place", "open", "close", "turn", "other")  # turn: turn on / turn off
+# turn: turn on / turn off; task: a task-level case (does the instruction hold? asked when the policy
+# says the task is done), labelled on the task's goal atoms. Appended last so that readers which list
+# kinds in this order keep the sub-plan kinds where they were.
+KINDS = ("pick", "place", "open", "close", "turn", "other", "task")
 
 # column -> (arrow type name, meaning); the order is the file's column order.
 COLUMNS: dict[str, tuple[str, str]] = {
@@ -44,7 +47,8 @@ COLUMNS: dict[str, tuple[str, str]] = {
     "task_id": ("int32", "task id within the suite"),
     "task": ("string", "suite/task_id, e.g. libero_10/0"),
     "init_source": ("string", "official (LIBERO's evaluation starts) | fresh-train | fresh-heldout | "
-                              "demo (replayed from a recorded demonstration's sampled start)"),
+                              "demo (replayed from a recorded demonstration's sampled start); DAgger rollouts' "
+                              "cases are fresh-train (their starts: `seal.dagger.dagger_seed`, in init_seed)"),
     "init_index": ("int32", "index of the init state within its source"),
     "init_seed": ("int64", "placement-sampler seed that drew a fresh init state (-1: official)"),
     "episode": ("int32", "episode number of this task in the collection"),
@@ -53,16 +57,20 @@ COLUMNS: dict[str, tuple[str, str]] = {
     "knobs": ("string", "scripted expert's failure setting (clean | misaligned)"),
     "instruction": ("string", "the task instruction"),
     "plans": ("list<string>", "every sub-plan of the policy's plan, in order"),
-    "subplan": ("string", "the sub-plan being judged"),
+    "subplan": ("string", "the sub-plan being judged (kind task: the instruction)"),
     "subplan_index": ("int32", "position of subplan in plans (-1: not in it)"),
     "subplan_number": ("int32", "1-based count of sub-plans started so far in the episode"),
-    "kind": ("string", "pick | place | open | close | turn (on/off) | other"),
+    "kind": ("string", "pick | place | open | close | turn (on/off) | other | task (the instruction, judged on "
+                       "the task's goal atoms)"),
     "round": ("int32", "sampling round of the sub-plan (0-based)"),
     "candidate": ("int32", "candidate slot within the round"),
     "steps": ("int32", "control steps the candidate ran for this sub-plan"),
-    "ended_by": ("string", "think | budget | step_limit | midway (a mid-rollout check)"),
+    "ended_by": ("string", "think | budget | step_limit | midway (a mid-rollout check) | demo; DAgger rollouts "
+                           "(`seal demos dagger --verifier-cases`): think, vla_done (the policy declared the task "
+                           "done), task_success (LIBERO's check first held), before_release (a place's last "
+                           "closed-gripper state)"),
     "label": ("bool", "the oracle's verdict: the sub-plan's goal atoms all hold (positive = success)"),
-    "atoms": ("list<string>", "goal atoms the oracle grounded the sub-plan to"),
+    "atoms": ("list<string>", "goal atoms the oracle grounded the sub-plan to (kind task: the task's goal atoms)"),
     "atom_values": ("list<bool>", "their truth in the candidate's end state"),
     "objects": ("list<string>", "object and region names of the scene (what the oracle grounds with)"),
     "first_agent": ("binary", "PNG 224x224 RGB: front (agent) camera when the sub-plan started"),
@@ -185,7 +193,9 @@ def case_row(base: dict, request: VerifyRequest, verdict, *, case_id: str, subpl
     images = (request.first_agent, request.final_agent, request.final_wrist)
     return {**base, "case_id": case_id, "plans": list(request.plans), "subplan": request.subplan,
             "subplan_index": -1 if request.index is None else int(request.index), "subplan_number": subplan_number,
-            "kind": subplan_kind(request.subplan, atoms), "round": int(round), "candidate": int(candidate),
+            # a task-level request is judged on the task's goal, whatever kinds of atom that goal holds
+            "kind": "task" if request.task_level else subplan_kind(request.subplan, atoms),
+            "round": int(round), "candidate": int(candidate),
             "steps": int(steps), "ended_by": ended_by, "label": bool(verdict.success), "atoms": atoms,
             "atom_values": [bool(scene.facts[a]) for a in atoms],
             "objects": sorted(set(scene.bodies) | set(scene.sites)),
@@ -279,7 +289,10 @@ def to_request(case: Case) -> VerifyRequest:
                        bodies=dict.fromkeys(row["objects"]),
                        facts=dict(zip(row["atoms"], (bool(v) for v in row["atom_values"]))))
     index = row["subplan_index"]
+    # a task-level case asks again the question it was labelled on: the task's goal atoms, not a grounding
+    # of the instruction's words (which the oracle could not ground)
+    goal_atoms = tuple(row["atoms"]) if row["kind"] == "task" else ()
     return VerifyRequest(subplan=row["subplan"], instruction=row["instruction"], plans=tuple(row["plans"]),
                          index=None if index < 0 else index, first_agent=case.images[0],
                          final_agent=case.images[1], final_wrist=case.images[2], scene=scene,
-                         task=row["task"], candidate=row["candidate"])
+                         task=row["task"], candidate=row["candidate"], goal_atoms=goal_atoms)
