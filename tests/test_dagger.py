@@ -86,6 +86,10 @@ def test_a_round_resumes_without_recording_anything_twice_and_trains_beside_demo
     report = json.loads(capsys.readouterr().out)
     assert report["episodes"] == 1 and report["frames"] == 6 and report["teacher_checks"] == 1
     assert report["teacher_recovered"] + len(report["teacher_unrecovered"]) == 1
+    # the episode's metadata gives the rollout's length, not where the teacher check left the world
+    (meta,) = [json.loads(line) for line in (out / "dataset/meta/episodes.jsonl").read_text().splitlines()]
+    (logged,) = [json.loads(line) for line in (out / "attempts.jsonl").read_text().splitlines()]
+    assert meta["meta"]["steps"] == logged["steps"] == 30
 
     # trains on it beside demonstrations (224-px synthetic ones; the cache resizes them), fine-tuning the shipped VLA
     from _annotate_data import make_v21

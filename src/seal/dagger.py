@@ -238,7 +238,8 @@ def run_dagger_episode(job: DaggerJob) -> tuple[DaggerJob, dict, Episode | None,
         subplans=[p.text for p in plans], critical_frames=[-1] * len(plans),
         meta={"suite": job.suite, "task_id": job.task_id, "init_index": job.episode, "start": "sampled",
               "start_seed": seed, "render_mode": job.render_mode, "image_size": job.image_size,
-              "fast_version": FAST_VERSION if job.render_mode == "fast" else None, "steps": world.steps,
+              # the rollout's own length (the teacher check above has moved the world since)
+              "fast_version": FAST_VERSION if job.render_mode == "fast" else None, "steps": attempt["steps"],
               # the frames are chunk boundaries of the VLA's rollout; every label is the expert's at that state
               "success": success, "dagger": {"round": job.round, "beta": job.beta, "ckpt": job.ckpt,
                                              "ended": ended, "executed": executed,
