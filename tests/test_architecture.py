@@ -8,7 +8,9 @@ A module's dependencies are read with `ast` from every file under src/seal:
   first use, they are dependencies all the same;
 - ``import_module("seal....")`` with a literal name.
 
-So a rule broken anywhere, at import time or on first use, fails here.
+So a rule broken anywhere, at import time or on first use, fails here. An import under
+``if TYPE_CHECKING:`` counts for the layers (an annotation names what it depends on) but not for
+cycles (it never runs).
 """
 
 from __future__ import annotations
@@ -86,13 +88,28 @@ def _resolve(name: str, modules: dict[str, Path]) -> str | None:
     return None
 
 
-def _dependencies(path: Path, modules: dict[str, Path] = MODULES) -> list[tuple[str, int, str]]:
+def _type_checking_only(tree: ast.AST) -> set[int]:
+    """ids of the nodes under ``if TYPE_CHECKING:`` (or ``typing.TYPE_CHECKING``)."""
+    inside: set[int] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and (getattr(node.test, "id", None) == "TYPE_CHECKING"
+                                         or getattr(node.test, "attr", None) == "TYPE_CHECKING"):
+            inside.update(id(n) for stmt in node.body for n in ast.walk(stmt))
+    return inside
+
+
+def _dependencies(path: Path, modules: dict[str, Path] = MODULES, *,
+                  type_only: bool = True) -> list[tuple[str, int, str]]:
     """(SEAL module depended on, line, how) for every import, dotted plug-in path and literal
-    ``import_module`` in the file. A dotted path whose module does not exist comes back as it is
-    written (see `test_dotted_paths_name_what_exists`)."""
+    ``import_module`` in the file (without ``type_only``: not those under ``if TYPE_CHECKING:``).
+    A dotted path whose module does not exist comes back as it is written (see
+    `test_dotted_paths_name_what_exists`)."""
     tree = ast.parse(path.read_text(), filename=str(path))
+    skip = set() if type_only else _type_checking_only(tree)
     out = []
     for node in ast.walk(tree):
+        if id(node) in skip:
+            continue
         if isinstance(node, ast.Import):
             for alias in node.names:
                 if _in(alias.name, "seal") and (target := _resolve(alias.name, modules)):
@@ -143,11 +160,11 @@ def _upward(modules: dict[str, Path]) -> list[str]:
 
 
 def _graph(modules: dict[str, Path]) -> dict[str, dict[str, str]]:
-    """module -> {module it depends on: where and how (the first occurrence)}."""
+    """module -> {module it depends on at run time: where and how (the first occurrence)}."""
     graph: dict[str, dict[str, str]] = {}
     for name, path in modules.items():
         deps: dict[str, str] = {}
-        for dep, line, how in _dependencies(path, modules):
+        for dep, line, how in _dependencies(path, modules, type_only=False):
             if dep in modules and dep != name:
                 deps.setdefault(dep, f"{name}:{line} {how}")
         graph[name] = deps
@@ -312,6 +329,9 @@ def test_the_rules_catch_a_breach(tmp_path):
         "seal/steer/__init__.py": "",
         "seal/steer/engine.py": "from seal.steer import method\n",
         "seal/steer/method.py": "def h():\n    from seal.steer.engine import Steerer\n",
+        "seal/steer/config.py": "from typing import TYPE_CHECKING\nP = {'base': 'seal.steer.selection:Selection'}\n",
+        "seal/steer/selection.py": "import typing\nif typing.TYPE_CHECKING:\n    from seal.steer.config import P\n"
+                                   "    from seal.eval.runner import run\n",
         "seal/eval/__init__.py": "",
         "seal/eval/runner.py": "def run():\n    pass\n",
         "seal/cli.py": "",
@@ -330,5 +350,7 @@ def test_the_rules_catch_a_breach(tmp_path):
     assert ("seal.verify.vlm", ["_x"], 3) in _imports(modules["seal.sim.world"])
     graph = _graph(modules)
     assert _cycles(graph) == [["seal.steer.engine", "seal.steer.method"]]  # closed by a lazy import
+    # a type-only import closes no cycle (config <-> selection), but is still an upward arrow
+    assert "seal.steer.selection:4 (one episode) -> seal.eval.runner" in up
     assert "seal.steer.method:2 from seal.steer.engine import Steerer -> seal.steer.engine" in _describe(
         ["seal.steer.engine", "seal.steer.method"], graph)
