@@ -31,8 +31,8 @@ SRC = Path(__file__).resolve().parents[1] / "src"
 LAYERS = [
     ("the root: SEAL's errors and version", ("seal", "seal.errors")),
     ("the world", ("seal.sim",)),
-    ("services that know no SEAL concept", ("seal.registry", "seal.checkpoint", "seal.vlm", "seal.datasets",
-                                            "seal.progress")),
+    ("services that know no SEAL concept", ("seal.registry", "seal.options", "seal.checkpoint", "seal.vlm",
+                                            "seal.datasets", "seal.progress")),
     ("plug-ins at the loop's seams: who acts (policies, sub-plan planners, an openpi server's client), "
      "who judges (verifiers), who scores (the value function)",
      ("seal.policies", "seal.verify", "seal.value", "seal.serving", "seal.serving.protocol", "seal.serving.client")),

@@ -13,7 +13,6 @@ import csv
 import hashlib
 import json
 import re
-from dataclasses import fields
 
 import pytest
 
@@ -23,7 +22,7 @@ from seal.report.data import ReportData
 from seal.report.labels import DEFAULTS, KnownVLA, display_name, shipped_vlas
 from seal.report.paper import paper_method_for
 from seal.report.stats import paired_from_counts
-from seal.steer.method import MethodSpec
+from seal.steer.method import MethodSpec, settings
 
 HEX = re.compile(r"[0-9a-f]{6,}")
 VALUE_DIGEST, LEARNED_DIGEST = "0123456789ab", "fedcba987654"  # stand-ins for checkpoint digests
@@ -50,7 +49,7 @@ def _standard() -> dict[str, dict]:
 def test_defaults_agree_with_method_spec():
     spec = MethodSpec()  # render is resolved at construction: the scripted expert's is stock
     assert {k: getattr(spec, k) for k in DEFAULTS} == DEFAULTS
-    assert set(DEFAULTS) <= {f.name for f in fields(MethodSpec)}
+    assert set(DEFAULTS) <= {s.name for s in settings()}  # the loop's and every plug-in's settings
 
 
 def test_standard_methods_read_as_a_person_would_write_them():

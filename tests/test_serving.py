@@ -28,7 +28,8 @@ from seal.serving.client import ClientConfig, OpenpiPolicy, _Lane
 from seal.serving.server import PolicyServer, ServerProcess, ServerThread, scripted_factory, scripted_info
 from seal.sim.pool import EnvPool
 from seal.sim.suites import get_task
-from seal.steer.engine import Steerer, SteerConfig
+from seal.steer.config import SteerConfig
+from seal.steer.engine import Steerer
 from seal.steer.run import expert_policy
 from seal.steer.trace import Trace, read_trace
 from seal.verify.oracle import OracleVerifier

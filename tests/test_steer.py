@@ -10,7 +10,8 @@ from seal.policies.expert.policy import FailureKnobs
 from seal.sim.pool import EnvPool
 from seal.sim.suites import get_task
 from seal.sim.world import LiberoWorld, PhysicsMismatch
-from seal.steer.engine import Steerer, SteerConfig
+from seal.steer.config import SteerConfig
+from seal.steer.engine import Steerer
 from seal.steer.run import expert_policy
 from seal.steer.trace import TIMING_FIELDS, Trace, read_trace, same_episode, without_timing
 from seal.verify.base import Verdict

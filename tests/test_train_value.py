@@ -131,7 +131,7 @@ def test_value_function_from_a_64px_dataset_scores_the_policy_view(tmp_path):
 
     from seal.datasets.lerobot import LeRobotWriter
     from seal.sim.observation import Observation
-    from seal.steer.selection import ValueSelection
+    from seal.steer.scoring import scoring_view
     from seal.value.inputs import downsample
 
     def small(images):
@@ -158,16 +158,12 @@ def test_value_function_from_a_64px_dataset_scores_the_policy_view(tmp_path):
     obs64 = Observation(state=np.zeros(8, np.float32), prompt="p", agent=episodes[0].agent_images[0])
     assert scorer.score(obs64, np.zeros((3, 5, 7), np.float32), "put the bowl on the plate").shape == (3,)
 
-    class Loop:  # what `_scorer_view` reads of the steering loop
-        scorer_needs_images = True
-        asked = []
+    asked = []
 
-        def _observe(self, slot, *, images, atoms):
-            self.asked.append(images)
-            return Observation(state=np.zeros(8, np.float32), prompt="p", agent=np.zeros((images, images, 3), np.uint8))
+    def render(images):  # the loop's one more render of the same state, at the size asked for
+        asked.append(images)
+        return np.zeros((images, images, 3), np.uint8)
 
-    loop = Loop()
-    loop.scorer = scorer
-    assert ValueSelection._scorer_view(loop, obs64) is obs64 and loop.asked == []  # the policy's render serves
+    assert scoring_view(scorer, obs64, render) is obs64 and asked == []  # the policy's render serves
     obs224 = Observation(state=np.zeros(8, np.float32), prompt="p", agent=np.zeros((224, 224, 3), np.uint8))
-    assert ValueSelection._scorer_view(loop, obs224).agent.shape == (64, 64, 3) and loop.asked == [64]
+    assert scoring_view(scorer, obs224, render).agent.shape == (64, 64, 3) and asked == [64]

@@ -32,7 +32,8 @@ from seal.eval.trials import MethodSpec
 from seal.policies.expert.policy import FailureKnobs
 from seal.sim.pool import EnvPool
 from seal.sim.suites import get_task
-from seal.steer.engine import Steerer, SteerConfig
+from seal.steer.config import SteerConfig
+from seal.steer.engine import Steerer
 from seal.steer.run import expert_policy
 from seal.steer.trace import Trace, read_trace
 from seal.verify.base import Verdict

@@ -23,6 +23,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
@@ -132,3 +133,24 @@ def identity(directory: Path, *, kind: str, required: tuple[str, ...], files: tu
         with open(directory / name, "rb") as f:
             h.update(f.read())
     return h.hexdigest()[:12]
+
+
+@dataclass(frozen=True)
+class CheckpointFormat:
+    """One kind of checkpoint directory: its manifest's kind, the files the manifest must vouch for,
+    and the files whose bytes name it in a results store (with which hash). The one way every
+    plug-in with weights (the VLA, the learned verifier, the V-GPS value function) checks and names
+    its checkpoint."""
+
+    kind: str
+    required: tuple[str, ...]
+    named_by: tuple[str, ...]
+    algorithm: str = "sha256"
+
+    def verify(self, directory: Path) -> dict:
+        return verify(directory, kind=self.kind, required=self.required)
+
+    def digest(self, directory: Path) -> str:
+        """12 hex digits over the verified bytes of ``named_by`` (`identity`)."""
+        return identity(directory, kind=self.kind, required=self.required, files=self.named_by,
+                        algorithm=self.algorithm)

@@ -108,8 +108,9 @@ def run(args) -> dict:
                     with build_episode(spec, task, seed=seed, pool=pool, max_steps=getattr(args, "max_steps", None),
                                        grids=False) as episode:
                         r = episode.run(trial % n_inits)
-                    row = {"cell": name, "fp": spec.false_positive if name != "base" else None,
-                           "fn": spec.false_negative if name != "base" else None, "task": task.key,
+                    rates = spec.verifier_options
+                    row = {"cell": name, "fp": rates.false_positive if name != "base" else None,
+                           "fn": rates.false_negative if name != "base" else None, "task": task.key,
                            "trial": trial, "init": trial % n_inits, "seed": seed, "success": bool(r.success),
                            "steps": r.steps, "verifier_calls": r.verifier_calls, "fallbacks": r.fallbacks}
                     log.write(json.dumps(row) + "\n")

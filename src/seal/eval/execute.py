@@ -76,13 +76,13 @@ class TrialRunner:
         row.finished_at = time.time()
         return row
 
-    def _scorer(self, path: str):
-        """The V-GPS scorer of a checkpoint, loaded once per worker."""
-        if path not in self._scorers:
+    def _scorer(self, name: str, path: str):
+        """A scorer (V-GPS) of a checkpoint, loaded once per worker."""
+        if (name, path) not in self._scorers:
             from seal.steer.scoring import make_scorer
 
-            self._scorers[path] = make_scorer("value", path)
-        return self._scorers[path]
+            self._scorers[name, path] = make_scorer(name, path)
+        return self._scorers[name, path]
 
     def _pool_for(self, spec: TrialSpec, k: int):
         """The env pool of this trial's task, reused while trials of the same task, render model
@@ -107,7 +107,7 @@ class TrialRunner:
 
         m = spec.method
         pool = self._pool_for(spec, m.effective_k)
-        scorer = self._scorer(m.value_ckpt) if m.scores else None
+        scorer = self._scorer(m.scorer, m.scorer_checkpoint) if m.scores else None
         with build_episode(m, pool.task, seed=spec.seed, out_dir=out, pool=pool, max_steps=self.options.max_steps,
                            grids=self.options.grids and m.method != "base", scorer=scorer) as episode:
             result = episode.run(spec.init_index)

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 from seal.errors import InvalidInput
 # One method description for every command: defined with the steering loop, re-exported here.
-from seal.steer.method import KNOBS, MethodSpec, checkpoint_digest, parse_methods  # noqa: F401
+from seal.steer.method import MethodSpec, parse_methods  # noqa: F401
 
 
 @dataclass(frozen=True)

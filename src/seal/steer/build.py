@@ -14,8 +14,9 @@ from pathlib import Path
 
 from seal.errors import InvalidInput, VerifierUnavailable
 from seal.policies import make_policy
-from seal.steer.engine import Steerer, SteerResult
+from seal.steer.engine import Steerer
 from seal.steer.method import MethodSpec
+from seal.steer.result import SteerResult
 from seal.steer.scoring import make_scorer
 from seal.steer.trace import Trace
 from seal.steer.video import replay_video
@@ -88,9 +89,9 @@ def build_episode(spec: MethodSpec, task, *, seed: int = 0, out_dir: str | Path 
             except InvalidInput as exc:  # e.g. no API key: no verdict would ever come, so a run must stop
                 raise VerifierUnavailable(f"cannot build the {spec.verifier!r} verifier: {exc}") from None
         if scorer is None and spec.scores:
-            scorer = make_scorer("value", spec.value_ckpt)
+            scorer = make_scorer(spec.scorer, spec.scorer_checkpoint)
         if policy is None:
-            policy = make_policy(spec.policy, spec, task, seed=seed)
+            policy = make_policy(spec.policy, spec.policy_options, task, seed=seed)
             stack.callback(policy.close)
         eval_world = None
         if spec.mode == "replay":  # the "real" world the winners' actions are executed in

@@ -37,102 +37,24 @@ progress displays listen; the loop writes no file itself.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from seal.errors import InvalidInput
-from seal.policies.base import ACTION_HORIZON, Reasoning, images_for
+from seal.policies.base import ACTION_HORIZON, ActionChunk, Reasoning, images_for
 from seal.sim.observation import Observation
 from seal.sim.snapshot import Snapshot
 from seal.steer.background import BackgroundVerifier
+from seal.steer.config import SteerConfig
 from seal.steer.events import GridWriter, Subscriber
-from seal.steer.method import DONE_CHECKS, MODES, PICKS, VALUE_GOALS, VERIFY_ORDERS
-from seal.steer.selection import METHODS, Candidate, Check, Subplan, selection_for
+from seal.steer.result import SteerResult
+from seal.steer.scoring import scoring_images, scoring_view
+from seal.steer.selection import Candidate, Check, Subplan
 from seal.steer.trace import Trace
 from seal.verify.base import Verdict, VerifyRequest
 from seal.verify.oracle import ground
 
-__all__ = ["METHODS", "Candidate", "SteerConfig", "SteerResult", "Steerer"]
-
-
-@dataclass(frozen=True)
-class SteerConfig:
-    method: str = "seal"
-    k: int = 10
-    rounds: int = 2  # sampling rounds per sub-plan before the fallback picks a candidate
-    subplan_budget: int = 200  # control steps one candidate may spend on one sub-plan
-    mode: str = "sync"
-    max_steps: int | None = None  # default: the suite's limit (520 for LIBERO-10)
-    seed: int = 0
-    value_goal: str = "task"  # value method: what the scorer is conditioned on (V-GPS uses the task)
-    check_every: int = 20  # policies that never think: steps between mid-rollout verifier checks
-    pick: str = "first"  # seal: the first pass, or the best-scored pass of a whole round (MethodSpec.pick)
-    # seal: "slot" waits at each chunk boundary for the verdicts of the candidates that ended there and takes
-    # them candidate 0 first (a function of the seeds); "arrival" takes them as they come in (MethodSpec.verify_order)
-    verify_order: str = "slot"
-    done_check: str = "verify"  # seal: verify the policy's "the task is complete" (MethodSpec.done_check)
-
-    def __post_init__(self) -> None:
-        if self.method not in METHODS:
-            raise InvalidInput(f"unknown method {self.method!r}; valid: {', '.join(METHODS)}")
-        if self.value_goal not in VALUE_GOALS:
-            raise InvalidInput(f"unknown value goal {self.value_goal!r}; valid: {', '.join(VALUE_GOALS)}")
-        if self.mode not in MODES:
-            raise InvalidInput(f"unknown mode {self.mode!r}; valid: {', '.join(MODES)}")
-        if self.pick not in PICKS:
-            raise InvalidInput(f"unknown pick {self.pick!r}; valid: {', '.join(PICKS)}")
-        if self.verify_order not in VERIFY_ORDERS:
-            raise InvalidInput(f"unknown verify_order {self.verify_order!r}; valid: {', '.join(VERIFY_ORDERS)}")
-        if self.done_check not in DONE_CHECKS:
-            raise InvalidInput(f"unknown done_check {self.done_check!r}; valid: {', '.join(DONE_CHECKS)}")
-        if self.k < 1 or self.rounds < 1 or self.subplan_budget < ACTION_HORIZON or self.check_every < ACTION_HORIZON:
-            raise InvalidInput(f"need k >= 1, rounds >= 1, subplan_budget >= {ACTION_HORIZON}, check_every >= "
-                               f"{ACTION_HORIZON}; got k={self.k}, rounds={self.rounds}, "
-                               f"subplan_budget={self.subplan_budget}, check_every={self.check_every}")
-
-    @property
-    def effective_k(self) -> int:
-        return selection_for(self.method, self.pick).k(self)
-
-
-@dataclass
-class SteerResult:
-    task: str
-    instruction: str
-    init_index: int
-    method: str
-    success: bool = False
-    sim_error: bool = False
-    steps: int = 0
-    wall_s: float = 0.0
-    subplans: list[str] = field(default_factory=list)
-    goal_status: dict = field(default_factory=dict)
-    verifier_calls: int = 0
-    input_tokens: int = 0
-    output_tokens: int = 0
-    cost_usd: float = 0.0
-    rounds: int = 0
-    fallbacks: int = 0
-    verifier_errors: int = 0  # verifications that got no answer (transient errors past their retries)
-    verifier_unavailable: bool = False  # in most rounds that asked the verifier, it never answered
-    divergence: list[float] = field(default_factory=list)  # replay mode: per commit, max |qpos| gap
-    # per committed sub-plan: did the executed chunks achieve it by simulator truth? (True/False; None =
-    # the sub-plan names nothing the oracle can ground). Measured for every method, never used to decide.
-    aligned: list = field(default_factory=list)
-    # wall time of the loop's stages; predict_s includes the workers' physics and rendering, whose
-    # own (summed) times physics_cpu_s / render_cpu_s say how predict_s splits between the two
-    timing: dict = field(default_factory=lambda: {"sampling_s": 0.0, "predict_s": 0.0, "verify_wait_s": 0.0,
-                                                  "physics_cpu_s": 0.0, "render_cpu_s": 0.0})
-    executed_actions: list = field(default_factory=list)
-    # per "the task is complete" the policy wrote (done_check="verify"): did the verifier let it end?
-    done_checks: list = field(default_factory=list)
-    trace: str = ""
-    # why the loop stopped: goal_holds | policy_finished (the policy wrote "the task is complete") |
-    # step_limit | idle (it kept thinking without acting) | sim_error
-    ended_by: str = ""
-    last_reasoning: str = ""  # with policy_finished: the text that said so
-
+__all__ = ["Steerer"]
 
 
 class Steerer:
@@ -144,11 +66,12 @@ class Steerer:
 
     def __init__(self, pool, policy, verifier, config: SteerConfig, *, eval_world=None, trace: Trace | None = None,
                  grid_dir=None, scorer=None, subscribers: tuple[Subscriber, ...] = ()):
-        self.selection = selection_for(config.method, config.pick)
+        self.selection = config.selection()
         self.selection.check(verifier, scorer)
         self.scorer = scorer
-        if pool.k < config.effective_k:
-            raise InvalidInput(f"the pool has {pool.k} slots but method {config.method!r} needs k={config.effective_k}")
+        k = self.selection.k(config)
+        if pool.k < k:
+            raise InvalidInput(f"the pool has {pool.k} slots but method {config.method!r} needs k={k}")
         if config.mode == "replay" and eval_world is None:
             raise InvalidInput("replay mode needs an evaluation world to execute the winner's actions in")
         self.pool, self.policy, self.config, self.trace = pool, policy, config, trace
@@ -190,7 +113,7 @@ class Steerer:
         background = BackgroundVerifier(self.verifier) if self.verifier is not None else None
         try:
             while committed.steps < max_steps:
-                judge_images = self.selection.judge_needs_images(self)
+                judge_images = self.selection.judge_needs_images(self.verifier, self.scorer)
                 obs = self._observe(0, images=self.policy_images or judge_images, atoms=self.atoms)
                 first_agent = obs.agent
                 if judge_images and self.selection.verifies and self.policy_images is not True and self.policy_images:
@@ -272,9 +195,8 @@ class Steerer:
     def run_round(self, sub: Subplan, r: int) -> Candidate | None:
         """K candidates from the committed state until one wins or all end; returns the winner."""
         cfg, pool, result = self.config, self.pool, sub.result
-        k = cfg.effective_k
-        pool.sync(sub.committed)
-        self.policy.begin(k)
+        k = self.selection.k(cfg)
+        self.begin(sub, k)
         if sub.background is not None:
             sub.background.start_round()  # so a round decided without any verdict can be told apart
         now = time.perf_counter()
@@ -491,11 +413,30 @@ class Steerer:
             return None
         return all(self.pool.check(atoms, slots=[0])[0].values())
 
-    # ---- small helpers ------------------------------------------------------------------------
+    # ---- what a selection may call (`seal.steer.selection.Loop`) -------------------------------
     @property
-    def scorer_needs_images(self) -> bool:
-        return bool(self.scorer.needs_images)  # declared by the ChunkScorer protocol
+    def instruction(self) -> str:
+        return self.pool.task.instruction
 
+    def begin(self, sub: Subplan, k: int) -> None:
+        self.pool.sync(sub.committed)
+        self.policy.begin(k)
+
+    def sample(self, obs: list[Observation], reasoning: Reasoning, rows: list[int]) -> list[ActionChunk]:
+        return self.policy.act(obs, reasoning, rows=rows)
+
+    def scoring_view(self, obs: Observation, agent: np.ndarray | None = None) -> Observation:
+        return scoring_view(self.scorer, obs, lambda images: self._observe(0, images=images, atoms=None).agent, agent)
+
+    def score(self, obs: Observation, chunks: np.ndarray, goal: str) -> np.ndarray:
+        return np.asarray(self.scorer.score(obs, chunks, goal))
+
+    def step(self, chunk: np.ndarray):
+        images = self.policy_images or (scoring_images(self.scorer) if self.scorer is not None else False)
+        return self.pool.step({0: chunk}, observe=True, images=images, privileged_atoms=self.atoms,
+                              stop_on_success=True)[0]
+
+    # ---- small helpers ------------------------------------------------------------------------
     def _observe(self, slot: int, *, images: bool, atoms) -> Observation:
         return self.pool.observe([slot], images=images, privileged_atoms=atoms)[0]
 

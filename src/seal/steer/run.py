@@ -7,8 +7,8 @@ from dataclasses import asdict
 from pathlib import Path
 
 from seal.steer.build import build_episode
-from seal.steer.engine import SteerResult
 from seal.steer.method import MethodSpec
+from seal.steer.result import SteerResult
 
 
 def expert_policy(task, knobs=None, seed: int = 0):

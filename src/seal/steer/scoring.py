@@ -3,20 +3,27 @@
 ``score(obs, chunks, goal) -> (K,) array``, higher is better. The paper's baseline uses an
 IQL-trained Q-function conditioned on the task instruction (or, adapted to reasoning VLAs, on
 the current sub-plan); SEAL's `value` method re-ranks K chunks with it at every step.
-``make_scorer(name, checkpoint)`` loads one by name (``value``: `seal.value.vgps.VGPSScorer`).
+``make_scorer(name, checkpoint)`` loads one by name (``value``: `seal.value.vgps.VGPSScorer`);
+each entry carries its options class (`ValueOptions`: the checkpoint, digested into the config
+hash). What a scorer looks at is `scoring_images` / `scoring_view`: the steering loop renders it.
 """
 
 from __future__ import annotations
 
-from pathlib import Path
-from typing import Protocol
+from dataclasses import dataclass
+from typing import Callable, ClassVar, Protocol
 
 import numpy as np
 
-from seal.checkpoint import identity
-from seal.registry import Registry
-from seal.sim.observation import Observation
+from seal.checkpoint import CheckpointFormat
+from seal.errors import InvalidInput
+from seal.options import Options, option
+from seal.registry import Plugin, Registry
+from seal.sim.observation import IMAGE_SIZE, Observation
 from seal.value import VALUE_FILES, VALUE_KIND, value_directory
+
+# what names a value checkpoint in a results store: sha1 of its verified weights and config
+VALUE_CHECKPOINT = CheckpointFormat(VALUE_KIND, required=VALUE_FILES, named_by=VALUE_FILES, algorithm="sha1")
 
 
 class ChunkScorer(Protocol):
@@ -28,15 +35,51 @@ class ChunkScorer(Protocol):
         ...
 
 
+@dataclass(frozen=True)
+class ValueOptions(Options):
+    """A V-GPS checkpoint: the weights, not the path, decide the results (retraining in place is a
+    new method)."""
+
+    checkpoint: ClassVar[str] = "value_ckpt"
+    value_ckpt: str = option("", "value: checkpoint file or run directory (`seal train value`)")
+
+    def weights(self):
+        return VALUE_CHECKPOINT, value_directory(self.value_ckpt)
+
+    def check_in_use(self, method: str) -> None:
+        if not self.value_ckpt:
+            raise InvalidInput(f"method {method!r} needs a trained V-GPS checkpoint: {method}:value_ckpt=RUN_DIR "
+                               "(train one with `seal train value`)")
+
+
 # factory(checkpoint path) -> ChunkScorer
-SCORERS = Registry("scorer", {"value": "seal.value.vgps:VGPSScorer.load"})
+SCORERS = Registry("scorer", {
+    "value": Plugin("seal.value.vgps:VGPSScorer.load", ValueOptions, "V-GPS: an IQL Q-function (`seal train value`)"),
+})
 
 
 def make_scorer(name: str, checkpoint: str) -> ChunkScorer:
     return SCORERS.make(name, checkpoint)
 
 
-def value_digest(path: str | Path) -> str:
-    """What names a value checkpoint in a results store: sha1 of its verified weights and config."""
-    return identity(value_directory(path), kind=VALUE_KIND, required=VALUE_FILES, files=VALUE_FILES,
-                    algorithm="sha1")
+# ---- what a scorer looks at (the loop renders it) --------------------------------------------------
+def scoring_images(scorer: ChunkScorer) -> bool | int:
+    """The ``images`` argument of a pool call that renders what ``scorer`` looks at (False: nothing)."""
+    if not scorer.needs_images:
+        return False
+    size = getattr(scorer, "image_size", IMAGE_SIZE)
+    return True if size == IMAGE_SIZE else size
+
+
+def scoring_view(scorer: ChunkScorer, obs: Observation, render: Callable[[bool | int], np.ndarray],
+                 agent: np.ndarray | None = None) -> Observation:
+    """What the Q-function scores: the agent view at the size it was trained on. When the policy
+    reads its cameras at that size (a VLA and a value function both from 64-px data) its own
+    renders serve; otherwise ``agent`` when it has that size, else one more render of the same
+    state (``render(images)`` -> agent view)."""
+    size = getattr(scorer, "image_size", IMAGE_SIZE)
+    if not scorer.needs_images or (obs.agent is not None and obs.agent.shape[0] == size):
+        return obs
+    if agent is None or agent.shape[0] != size:
+        agent = render(scoring_images(scorer))
+    return Observation(state=obs.state, prompt=obs.prompt, agent=agent)

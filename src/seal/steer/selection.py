@@ -16,6 +16,10 @@ sub-plan loop.
             with the highest verifier score wins (no early exit: it spends the whole round
             to trust a confident verdict over an early one)
     value   V-GPS: at every chunk the scorer's best of K chunks is executed
+
+A selection sees the loop only through `Loop`: whole rounds of candidates, or (value) one batched
+sample, the scorer's view and score, one step of the committed slot. The methods are registered
+by name in `seal.steer.config.METHODS`.
 """
 
 from __future__ import annotations
@@ -23,19 +27,21 @@ from __future__ import annotations
 import time
 from concurrent.futures import Future
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
 from seal.errors import InvalidInput
-from seal.policies.base import ACTION_HORIZON, Reasoning
-from seal.sim.observation import IMAGE_SIZE, Observation
+from seal.policies.base import ACTION_HORIZON, ActionChunk, Reasoning
+from seal.sim.observation import Observation
 from seal.sim.snapshot import Snapshot
+from seal.steer.result import SteerResult
 from seal.verify.base import Verdict
 
 if TYPE_CHECKING:
-    from seal.steer.engine import SteerConfig, Steerer, SteerResult
+    from seal.sim.pool import SlotResult
     from seal.steer.background import BackgroundVerifier
+    from seal.steer.config import LoopSettings, SteerConfig
 
 
 @dataclass
@@ -78,9 +84,48 @@ class Subplan:
     reasoning: Reasoning
     max_steps: int  # the episode's step limit
     background: "BackgroundVerifier | None"
-    result: "SteerResult"
+    result: SteerResult
     tried: list[Candidate] = field(default_factory=list)
     first_agent: "np.ndarray | None" = None  # the verifier's "before" agent view (224 px; obs0's own if that is 224)
+
+
+class Loop(Protocol):
+    """What a selection may call on the steering loop (`seal.steer.engine.Steerer` implements it)."""
+
+    config: "SteerConfig"
+    rng: np.random.Generator
+
+    @property
+    def instruction(self) -> str:
+        """The task's instruction."""
+        ...
+
+    def run_round(self, sub: Subplan, r: int) -> Candidate | None:
+        """K candidates from the committed state until one wins or all end; the winner or None."""
+        ...
+
+    def begin(self, sub: Subplan, k: int) -> None:
+        """Every slot back to the committed state; the policy starts ``k`` attempts at the sub-plan."""
+        ...
+
+    def sample(self, obs: list[Observation], reasoning: Reasoning, rows: list[int]) -> list[ActionChunk]:
+        """One batched ``act`` call: a chunk per row."""
+        ...
+
+    def scoring_view(self, obs: Observation, agent: "np.ndarray | None" = None) -> Observation:
+        """What the scorer scores at the committed slot's state (``agent``: a view already rendered)."""
+        ...
+
+    def score(self, obs: Observation, chunks: np.ndarray, goal: str) -> np.ndarray:
+        """The scorer's K scores, higher is better."""
+        ...
+
+    def step(self, chunk: np.ndarray) -> "SlotResult":
+        """Slot 0 executes one chunk, observed as the policy and the scorer need."""
+        ...
+
+    def emit(self, event: str, **fields) -> None:
+        ...
 
 
 class Selection:
@@ -90,31 +135,38 @@ class Selection:
     verifies = False  # finished candidates go to the verifier
     scores = False  # chunks are ranked by a ChunkScorer (the episode builder loads one)
     stops_at_first_pass = True  # the loop stops collecting verdicts once one passes
+    # the loop settings (per_method ones, `seal.steer.config.LoopSettings`) that change this method's results:
+    # only these enter its config hash
+    uses: tuple[str, ...] = ()
 
-    def k(self, config: "SteerConfig") -> int:
+    @classmethod
+    def for_settings(cls, settings: "LoopSettings") -> "Selection":
+        return cls()
+
+    def k(self, config: "LoopSettings") -> int:
         return 1
 
-    def rounds(self, config: "SteerConfig") -> int:
+    def rounds(self, config: "LoopSettings") -> int:
         return 1
 
     def check(self, verifier, scorer) -> None:
         """Refuse a loop that lacks what this method needs."""
 
-    def judge_needs_images(self, loop: "Steerer") -> bool:
+    def judge_needs_images(self, verifier, scorer) -> bool:
         """Whether this method's judge (verifier or scorer) looks at the sub-plan's first frame."""
-        return self.verifies and loop.verifier is not None and loop.verifier.needs_images
+        return self.verifies and verifier is not None and verifier.needs_images
 
     def early_winner(self, cands: list[Candidate]) -> Candidate | None:
         """A winner while candidates may still be running (ends the round)."""
         first = cands[0]
         return first if first.ended_by and first.error is None else None
 
-    def fallback(self, usable: list[Candidate], rng: np.random.Generator, result: "SteerResult") -> Candidate:
+    def fallback(self, usable: list[Candidate], rng: np.random.Generator, result: SteerResult) -> Candidate:
         """No round produced a winner: pick among the candidates that ended cleanly."""
         scored = [c for c in usable if c.verdict is not None and c.verdict.score is not None]
         return max(scored, key=lambda c: c.verdict.score) if scored else usable[0]
 
-    def run_subplan(self, loop: "Steerer", sub: Subplan) -> Candidate | None:
+    def run_subplan(self, loop: Loop, sub: Subplan) -> Candidate | None:
         """Rounds of K candidates until one wins; None when every candidate hit a simulator error."""
         for r in range(self.rounds(loop.config)):
             sub.result.rounds += 1
@@ -129,6 +181,7 @@ class Selection:
 
 class RandomSelection(Selection):
     name = "random"
+    uses = ("k",)
 
     def k(self, config):
         return config.k
@@ -143,10 +196,15 @@ class RandomSelection(Selection):
 class SealSelection(Selection):
     name = "seal"
     verifies = True
+    uses = ("k", "rounds", "check_every", "pick", "verify_order", "done_check")
 
     def __init__(self, pick: str = "first"):
         self.pick = pick
         self.stops_at_first_pass = pick == "first"
+
+    @classmethod
+    def for_settings(cls, settings):
+        return cls(settings.pick)
 
     def k(self, config):
         return config.k
@@ -177,6 +235,7 @@ class ValueSelection(Selection):
 
     name = "value"
     scores = True
+    uses = ("k", "value_goal")
 
     def k(self, config):
         return config.k
@@ -185,34 +244,32 @@ class ValueSelection(Selection):
         if scorer is None:
             raise InvalidInput("method 'value' needs a chunk scorer (a trained V-GPS Q-function)")
 
-    def judge_needs_images(self, loop):
-        return loop.scorer is not None and loop.scorer_needs_images
+    def judge_needs_images(self, verifier, scorer):
+        return scorer is not None and bool(scorer.needs_images)
 
-    def run_subplan(self, loop: "Steerer", sub: Subplan) -> Candidate | None:
+    def run_subplan(self, loop: Loop, sub: Subplan) -> Candidate | None:
         cfg, k, result, reasoning = loop.config, loop.config.k, sub.result, sub.reasoning
-        goal = loop.pool.task.instruction if cfg.value_goal == "task" else reasoning.now
-        loop.pool.sync(sub.committed)
-        loop.policy.begin(k)
+        goal = loop.instruction if cfg.value_goal == "task" else reasoning.now
+        loop.begin(sub, k)
         c = Candidate(round=0, slot=0, snapshot=sub.committed, t_start=time.perf_counter())
-        obs, judged = sub.obs0, self._scorer_view(loop, sub.obs0, sub.first_agent)
+        obs, judged = sub.obs0, loop.scoring_view(sub.obs0, sub.first_agent)
         while True:
             t0 = time.perf_counter()
-            chunks = loop.policy.act([obs] * k, reasoning, rows=list(range(k)))
+            chunks = loop.sample([obs] * k, reasoning, list(range(k)))
             acting = [i for i, ch in enumerate(chunks) if not ch.think]
             end = ("think" if len(acting) <= k // 2 else "budget" if c.steps >= cfg.subplan_budget
                    else "step_limit" if sub.committed.steps + c.steps >= sub.max_steps else "")
             if end:  # most samples say the sub-plan is done: the policy would think now
                 c.ended_by, c.t_end = end, time.perf_counter()
                 break
-            scores = np.asarray(loop.scorer.score(judged, np.stack([chunks[i].actions for i in acting]), goal))
+            scores = loop.score(judged, np.stack([chunks[i].actions for i in acting]), goal)
             best = acting[int(np.argmax(scores))]
             result.timing["sampling_s"] += time.perf_counter() - t0
             t0 = time.perf_counter()
             chunk = np.clip(chunks[best].actions[:ACTION_HORIZON], -1.0, 1.0)
-            res = loop.pool.step({0: chunk}, observe=True, images=loop.policy_images or self._scorer_images(loop),
-                                 privileged_atoms=loop.atoms, stop_on_success=True)[0]
+            res = loop.step(chunk)
             if res.ok and not res.success:
-                judged = self._scorer_view(loop, res.observation)
+                judged = loop.scoring_view(res.observation)
             result.timing["predict_s"] += time.perf_counter() - t0
             result.timing["physics_cpu_s"] += res.physics_s
             result.timing["render_cpu_s"] += res.render_s
@@ -228,33 +285,3 @@ class ValueSelection(Selection):
         loop.emit("candidate", round=0, slot=0, steps=c.steps, ended_by=c.ended_by, error=c.error,
                   snapshot=c.snapshot.id, verdict=None, t_start=c.t_start, t_end=c.t_end, t_verified=0.0)
         return c
-
-    @staticmethod
-    def _scorer_images(loop: "Steerer") -> bool | int:
-        """The ``images`` argument that renders what the scorer looks at (False: nothing)."""
-        if not loop.scorer_needs_images:
-            return False
-        size = getattr(loop.scorer, "image_size", IMAGE_SIZE)
-        return True if size == IMAGE_SIZE else size
-
-    @staticmethod
-    def _scorer_view(loop: "Steerer", obs: Observation, agent: "np.ndarray | None" = None) -> Observation:
-        """What the Q-function scores: the agent view at the size it was trained on. When the policy
-        reads its cameras at that size (a VLA and a value function both from 64-px data) its own
-        renders serve; otherwise one more render of the same state (``agent`` when the caller has it)."""
-        size = getattr(loop.scorer, "image_size", IMAGE_SIZE)
-        if not loop.scorer_needs_images or (obs.agent is not None and obs.agent.shape[0] == size):
-            return obs
-        if agent is None or agent.shape[0] != size:
-            agent = loop._observe(0, images=ValueSelection._scorer_images(loop), atoms=None).agent
-        return Observation(state=obs.state, prompt=obs.prompt, agent=agent)
-
-
-SELECTIONS: dict[str, type[Selection]] = {s.name: s for s in (Selection, RandomSelection, ValueSelection, SealSelection)}
-METHODS = tuple(SELECTIONS)  # base, random, value, seal
-
-
-def selection_for(method: str, pick: str = "first") -> Selection:
-    if method not in SELECTIONS:
-        raise InvalidInput(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
-    return SealSelection(pick) if method == "seal" else SELECTIONS[method]()

@@ -4,13 +4,18 @@
 grounding), ``openai`` / ``gemini`` (a VLM looking at the views), ``noisy`` (the oracle with
 injected errors), ``learned`` (a small CNN trained by `seal train verifier`, `learned.py`; its
 checkpoint directory is ``model``, or written into the name: ``learned:RUN_DIR``). Any of them with a false-positive or false-negative rate is wrapped in
-``NoisyVerifier`` to study how verifier errors move success. A learned verifier registers a
-factory ``(*, model, base_url, seed, **opts) -> Verifier`` with ``VERIFIERS.register``.
+``NoisyVerifier`` to study how verifier errors move success. Each entry carries its options
+class (`options.py`). A new verifier registers a factory ``(*, model, base_url, seed, **opts) ->
+Verifier`` with ``VERIFIERS.register(name, factory, OptionsClass)``; its options beyond the
+common ones arrive as keyword arguments.
 """
 
 from __future__ import annotations
 
-from seal.registry import Registry
+from dataclasses import asdict
+
+from seal.registry import Plugin, Registry
+from seal.verify.options import LearnedOptions, VerifierOptions
 
 
 def _oracle(**_):
@@ -34,10 +39,19 @@ def _learned(*, model: str | None = None, base_url: str | None = None, seed: int
     return LearnedVerifier(model, **opts)
 
 
-VERIFIERS = Registry("verifier", {"oracle": _oracle, "openai": _vlm("openai"), "gemini": _vlm("gemini"),
-                                  "noisy": _oracle,  # noisy = the oracle, wrapped below with its rates
-                                  "learned": _learned})
-WITH_PATH = ("learned",)  # verifiers whose name may carry a checkpoint: learned:PATH
+VERIFIERS = Registry("verifier", {
+    "oracle": Plugin(_oracle, VerifierOptions, "simulator truth: the sub-plan's goal atoms"),
+    "openai": Plugin(_vlm("openai"), VerifierOptions, "a VLM judging the views (--model, --base-url)"),
+    "gemini": Plugin(_vlm("gemini"), VerifierOptions, "a Gemini VLM judging the views (--model)"),
+    "noisy": Plugin(_oracle, VerifierOptions,  # noisy = the oracle, wrapped below with its rates
+                    "the oracle with --false-positive / --false-negative errors"),
+    "learned": Plugin(_learned, LearnedOptions, "a small CNN from `seal train verifier` (learned:RUN_DIR)"),
+})
+
+
+def with_path() -> tuple[str, ...]:
+    """Verifiers whose name may carry a checkpoint: learned:PATH."""
+    return tuple(name for name in VERIFIERS.names if VERIFIERS.options(name).checkpoint)
 
 
 def split_name(name: str, model: str | None = None) -> tuple[str, str | None]:
@@ -47,8 +61,8 @@ def split_name(name: str, model: str | None = None) -> tuple[str, str | None]:
     base, sep, path = name.partition(":")
     if not sep:
         return name, model
-    if base not in WITH_PATH or not path:
-        raise InvalidInput(f"verifier {name!r}: only {', '.join(WITH_PATH)} takes a path (learned:RUN_DIR)")
+    if base not in with_path() or not path:
+        raise InvalidInput(f"verifier {name!r}: only {', '.join(with_path())} takes a path (learned:RUN_DIR)")
     return base, path
 
 
@@ -67,5 +81,4 @@ def verifier_for(spec, *, seed: int = 0):
     """The verifier a `MethodSpec` names, or None for a method that verifies nothing."""
     if not spec.verifies:
         return None
-    return make_verifier(spec.verifier, model=spec.model, base_url=spec.base_url,
-                         false_positive=spec.false_positive, false_negative=spec.false_negative, seed=seed)
+    return make_verifier(spec.verifier, seed=seed, **asdict(spec.verifier_options))

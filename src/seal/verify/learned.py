@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from seal.checkpoint import atomic_write, identity, verify, write_manifest
+from seal.checkpoint import CheckpointFormat, atomic_write, write_manifest
 from seal.errors import InvalidInput
 from seal.verify.base import Verdict, VerifyRequest
 
@@ -42,6 +42,8 @@ KIND = "seal-learned-verifier"
 WEIGHTS = "model.safetensors"
 CONFIG = "config.json"
 FILES = (WEIGHTS, CONFIG)
+# sha1 of the weights and config, as results stores have named a learned verifier from the start
+CHECKPOINT = CheckpointFormat(KIND, required=FILES, named_by=FILES, algorithm="sha1")
 ARCH_KEYS = ("image_size", "widths", "embed_dim", "max_words", "vocab")
 PAD, UNK = "<pad>", "<unk>"
 
@@ -183,8 +185,8 @@ def load_checkpoint(path: str | Path | None):
     from safetensors import SafetensorError
     from safetensors.torch import load_file
 
-    path = _directory(path)
-    verify(path, kind=KIND, required=FILES)  # every byte checked before any is parsed
+    path = checkpoint_dir(path)
+    CHECKPOINT.verify(path)  # every byte checked before any is parsed
     try:
         config = json.loads((path / CONFIG).read_text())
     except (OSError, ValueError) as exc:
@@ -217,19 +219,15 @@ def load_checkpoint(path: str | Path | None):
     return net, config, vocab
 
 
-def _directory(path: str | Path | None) -> Path:
+def checkpoint_dir(path: str | Path | None) -> Path:
+    """The checkpoint directory ``path`` names (itself, or the directory of a file in it; None: the
+    shipped one)."""
     path = Path(path) if path else DEFAULT_CHECKPOINT
     path = path.parent if path.is_file() else path
     if not path.is_dir():
         raise InvalidInput(f"no learned-verifier checkpoint at {path}: train one with `seal train verifier --data DIR "
                            f"--out RUN` and pass learned:RUN")
     return path
-
-
-def checkpoint_digest(path: str | Path | None) -> str:
-    """sha1 of a checkpoint's weights and config, as verified against its manifest (what names a
-    learned verifier in a results store; a damaged copy is refused, never filed under its name)."""
-    return identity(_directory(path), kind=KIND, required=FILES, files=FILES, algorithm="sha1")
 
 
 # ---- the verifier ------------------------------------------------------------------------------------

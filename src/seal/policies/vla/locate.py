@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from seal.checkpoint import MANIFEST, identity
+from seal.checkpoint import MANIFEST, CheckpointFormat
 from seal.errors import InvalidInput
 
 SHIPPED_DIR = Path(__file__).resolve().parent / "checkpoints"
@@ -20,6 +20,7 @@ FORMAT = 1
 KIND = "seal-vla"
 WEIGHTS, CONFIG, TOKENIZER = "model.safetensors", "config.json", "tokenizer.json"
 FILES = (WEIGHTS, CONFIG, TOKENIZER)  # what a checkpoint's manifest must vouch for
+CHECKPOINT = CheckpointFormat(KIND, required=FILES, named_by=(WEIGHTS,))  # named by the weights' sha256
 RUN_CHECKPOINT = "checkpoint"  # inside a `seal train vla` run directory
 
 
@@ -45,7 +46,7 @@ def checkpoint_digest(spec: str = "") -> str:
     """What identifies the weights: the first 12 hex digits of their sha256, taken from the file
     after the whole checkpoint was checked against its manifest (a damaged copy is refused, never
     filed under the genuine one's name), so retraining in place is a new method in a store."""
-    return identity(resolve_checkpoint(spec), kind=KIND, required=FILES, files=(WEIGHTS,))
+    return CHECKPOINT.digest(resolve_checkpoint(spec))
 
 
 def trained_render(spec: str = "") -> dict:
