@@ -152,7 +152,7 @@ def test_seal_serve_refuses_bad_policies_before_listening(tmp_path, capsys):
     assert main(["serve", "--policy", f"vla:{tmp_path / 'nowhere'}", "--port", "0"]) == 2
     assert "no VLA checkpoint at" in capsys.readouterr().err
     assert main(["serve", "--policy", "remote", "--port", "0"]) == 2
-    assert "valid: scripted, vla, vla:twin, vla:PATH" in capsys.readouterr().err
+    assert "valid: scripted, vla, vla:PATH" in capsys.readouterr().err
     with pytest.raises(P.ProtocolError, match="image_size must be in 16..1024"):
         P.ServerInfo.from_metadata({"seal": {"image_size": 4}})
     assert msgpack_numpy  # the wire codec the server uses is importable here too

@@ -5,13 +5,13 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
-import math
 import os
 import re
 import sys
 from pathlib import Path
 
 from seal.errors import InvalidInput, SealError
+from seal.options import int_at_least, real_in
 
 
 def _cmd_run(args) -> int:
@@ -396,12 +396,16 @@ def _cmd_report(args) -> int:
 
 
 def _cmd_serve(args) -> int:
-    from seal.serving.server import (POLICIES, PolicyServer, check_port, scripted_factory, scripted_info, vla_factory,
-                                     vla_info)
+    from dataclasses import replace
 
-    name, colon, ckpt = args.policy.partition(":")
-    if name not in POLICIES or (colon and name != "vla"):
-        raise InvalidInput(f"unknown --policy {args.policy!r} for seal serve; valid: scripted, vla, vla:twin, vla:PATH")
+    from seal.policies import POLICIES, servable
+    from seal.serving.server import PolicyServer, check_port, policy_server
+
+    name, colon, path = args.policy.partition(":")
+    served = servable()
+    if name not in served or (colon and not POLICIES.options(name).checkpoint):
+        valid = [v for n in served for v in ((n, f"{n}:PATH") if POLICIES.options(n).checkpoint else (n,))]
+        raise InvalidInput(f"unknown --policy {args.policy!r} for seal serve; valid: {', '.join(valid)}")
     if args.max_batch < 1:
         raise InvalidInput(f"--max-batch must be >= 1, got {args.max_batch}")
     check_port(args.port)  # before a checkpoint loads; a port in use is found when the server binds
@@ -411,17 +415,11 @@ def _cmd_serve(args) -> int:
         if not api_key:
             raise InvalidInput("--require-api-key: set the key in the OPENPI_API_KEY environment variable "
                                "(never on the command line)")
-    meta = {"policy": name, "action_dim": 7, "action_horizon": 16}
-    if name == "vla":  # loads (and checks) the checkpoint now: a bad one fails before listening
-        factory = vla_factory(ckpt, seed=args.seed)
-        info = vla_info(factory, args.max_batch, plain=args.plain)
-        meta.update(checkpoint=factory.source, weights_sha256=factory.manifest.get("weights_sha256", "")[:12],
-                    reasoning_model=factory.model.cfg.reasoning, image_size=factory.model.cfg.image_size)
-        default_task = args.task  # the VLA reads pixels: a client need not configure a task
-    else:
-        factory, info = scripted_factory(args.knobs, seed=args.seed), scripted_info(args.max_batch, plain=args.plain)
-        meta["knobs"] = args.knobs
-        default_task = args.task or None
+    options = POLICIES.options_of(name, args)  # the serve flags it declares (--knobs)
+    if colon:
+        options = replace(options, **{options.checkpoint: path})
+    factory, info, meta, default_task = policy_server(name, options, seed=args.seed, max_batch=args.max_batch,
+                                                      plain=args.plain, task=args.task)
     server = PolicyServer(factory, info, host=args.host, port=args.port, default_task=default_task, api_key=api_key,
                           metadata=meta)
 
@@ -490,41 +488,8 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"seal: error: {message}\n")
 
 
-def _int_at_least(low: int, high: int | None = None):
-    """An argparse type: an integer in ``low``..``high`` (a count, an index, a port), so a bad one
-    ends as ``seal: error: argument --x: ...`` before any work, never replaced by a default."""
-
-    def parse(text: str) -> int:
-        value = int(text)  # not a number: argparse's own "invalid int value: 'x'"
-        if value < low or (high is not None and value > high):
-            valid = f">= {low}" if high is None else f"in {low}..{high}"
-            raise argparse.ArgumentTypeError(f"must be an integer {valid}, got {value}")
-        return value
-
-    parse.__name__ = "int"
-    return parse
-
-
-def _real(low: float, high: float | None = None, *, low_open: bool = False, high_open: bool = False):
-    """An argparse type: a finite number in the interval from ``low`` to ``high`` (open ends as
-    said; no ``high``: unbounded)."""
-    if high is None:
-        valid = f"{'>' if low_open else '>='} {low:g}"
-    else:
-        valid = f"in {'(' if low_open else '['}{low:g}, {high:g}{')' if high_open else ']'}"
-
-    def parse(text: str) -> float:
-        value = float(text)  # not a number: argparse's own "invalid float value: 'x'"
-        inside = (value > low if low_open else value >= low) and (
-            high is None or (value < high if high_open else value <= high))
-        if not math.isfinite(value) or not inside:
-            raise argparse.ArgumentTypeError(f"must be a number {valid}, got {text}")
-        return value
-
-    parse.__name__ = "float"
-    return parse
-
-
+# one definition of these argparse types, shared with the plug-ins' options (`seal.options`)
+_int_at_least, _real = int_at_least, real_in
 _COUNT = _int_at_least(1)  # how many (steps, trials, workers, ...)
 _INDEX = _int_at_least(0)  # which one, from 0
 _RATE = _real(0.0, 1.0)  # a probability or rate
@@ -533,68 +498,65 @@ _POSITIVE = _real(0.0, low_open=True)  # seconds, minutes, a learning rate
 _NONNEGATIVE = _real(0.0)
 
 
-def _mismatch(text: str):
-    from seal.steer.method import parse_mismatch
+def _method_flags(without=()) -> list:
+    """The method options shared by `seal run`, `seal eval` and `seal verify collect`, generated from
+    the loop's settings and every registered plug-in's options (`seal.steer.method.settings`): a
+    flag per setting, its type and help (with the default) from the declaration. Defaults are None
+    here (= not given), so MethodSpec's own apply and every command means the same by them."""
+    from seal.steer.method import settings
 
-    try:
-        return parse_mismatch(text)
-    except InvalidInput as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
-
-
-# (flag, MethodSpec field, type, help): the options of a method, shared by `seal run` and `seal eval`.
-# Defaults are MethodSpec's own (None here = not given), so both commands mean the same by them.
-_METHOD_OPTIONS = (
-    ("--k", _COUNT, "candidates per sub-plan (default 10)"),
-    ("--rounds", _COUNT, "sampling rounds before the fallback (default 2)"),
-    ("--subplan-budget", int, "control steps one candidate may spend on one sub-plan (default 200)"),
-    ("--mode", str, "sync (default) | replay: execute winners in a separate evaluation world"),
-    ("--mismatch", _mismatch, "prediction physics scales 'friction,mass,damping', e.g. 1.3,0.8,1.2"),
-    ("--render", str, "render model: stock | fast (default: the policy's own, i.e. the one a learned VLA's "
-                      "demonstrations were recorded in, else stock)"),
-    ("--check-every", int, "policies without <think>: steps between mid-rollout verifier checks (default 20)"),
-    ("--verifier", str, "oracle (default) | openai | gemini | noisy | learned[:RUN_DIR]"),
-    ("--model", str, "VLM model name (openai/gemini verifiers); learned: checkpoint directory"),
-    ("--base-url", str, "OpenAI-compatible server URL for VLM verifier/planner (default: OPENAI_BASE_URL)"),
-    ("--false-positive", _RATE, "noisy verifier: false-positive rate"),
-    ("--false-negative", _RATE, "noisy verifier: false-negative rate"),
-    ("--value-ckpt", str, "value: checkpoint file or run directory (`seal train value`)"),
-    ("--value-goal", str, "value: condition the Q-function on the task (V-GPS, default) or the sub-plan"),
-    ("--policy", str, "scripted (default) | remote: an openpi-protocol server at --host/--port (docs/serving.md) | "
-                      "vla[:PATH]: a learned VLA checkpoint (default: the shipped one; vla:twin for its twin)"),
-    ("--knobs", str, "scripted expert's failure setting: clean | misaligned (default)"),
-    ("--host", str, "remote policy server host (or a ws:// URI; default 127.0.0.1)"),
-    ("--port", _int_at_least(1, 65535), "remote policy server port (default 8000)"),
-    ("--transport", str, "remote: how K observations are sent: auto | batched | concurrent | sequential"),
-    ("--request-timeout", _POSITIVE, "remote: seconds to wait for one reply (default 30)"),
-    ("--planner", str, "sub-plans for a remote server that does not reason (plain pi0): annotations | vlm"),
-    ("--annotations", str, "annotations planner: JSON file or LeRobot dataset dir (default: the task's decomposition)"),
-    ("--planner-model", str, "vlm planner: model name (default gpt-4o)"),
-    ("--prompt", str, "remote server without reasoning: prompt with the task (default) or the current sub-plan"),
-    ("--done-check", str, "seal: verify (default) asks the verifier whether the instruction holds when the policy "
-                          "writes that the task is complete, and a refusal sends it back to its last claimed "
-                          "sub-plan | trust: the episode ends on the policy's word (results before the check)"),
-    ("--verify-order", str, "seal: slot (`seal eval`'s default) waits at each chunk boundary for the verdicts of the "
-                            "candidates that ended there and takes them candidate 0 first: the same seeds give the same "
-                            "trace under any load | arrival (`seal run`'s default): verdicts are taken as they come in "
-                            "while sampling goes on, the paper's early exit, so thread timing can change the winner"),
-)
+    return [s for s in settings() if s.flag and s.name not in without]
 
 
-def _add_method_options(p: argparse.ArgumentParser) -> None:
+def _add_method_options(p: argparse.ArgumentParser, without=()) -> None:
     group = p.add_argument_group("method options (seal.steer.method.MethodSpec)")
-    for flag, kind, help_text in _METHOD_OPTIONS:
-        group.add_argument(flag, type=kind, default=None, help=help_text)
+    for setting in _method_flags(without):
+        group.add_argument(setting.option, type=setting.type, default=None, help=setting.help)
 
 
 def _method_settings(args) -> dict:
-    """The method options given on the command line, as MethodSpec fields."""
-    out = {}
-    for flag, _, _ in _METHOD_OPTIONS:
-        name = flag[2:].replace("-", "_")
-        if getattr(args, name) is not None:
-            out[name] = getattr(args, name)
-    return out
+    """The method options given on the command line, as MethodSpec settings."""
+    return {s.name: getattr(args, s.name) for s in _method_flags() if getattr(args, s.name, None) is not None}
+
+
+def _collect_fixes() -> set[str]:
+    """What `seal verify collect` sets itself: the policy and the expert's knobs (its own flags),
+    the verifier (the oracle labels every case) and the scorer, with their options."""
+    from seal.policies import POLICIES
+    from seal.steer.scoring import SCORERS
+    from seal.verify import VERIFIERS
+
+    judges = (VERIFIERS.option_names() | SCORERS.option_names()) - POLICIES.option_names()
+    return {"policy", "knobs", "verifier", "scorer", "value_goal"} | judges
+
+
+def _policy_help(only=None) -> str:
+    """The registered policies, each with its one-line summary (``only``: a filter on the names)."""
+    from seal.policies import POLICIES
+
+    names = [n for n in POLICIES.names if only is None or only(n)]
+    return " | ".join(f"{n}{'[:PATH]' if POLICIES.options(n).checkpoint else ''}: {POLICIES.plugin(n).summary}"
+                      for n in names)
+
+
+def _served(name: str) -> bool:
+    from seal.policies import servable
+
+    return name in servable()
+
+
+def _knobs() -> tuple[str, list[str]]:
+    """The scripted expert's knobs setting: its default and choices, as its options declare them."""
+    from seal.policies.options import KNOBS, ScriptedOptions
+
+    return ScriptedOptions().knobs, list(KNOBS)
+
+
+def _method_choices() -> tuple[list[str], str]:
+    """The registered methods and a help text naming each."""
+    from seal.steer.config import METHODS
+
+    return list(METHODS.names), " | ".join(f"{n}: {METHODS.plugin(n).summary}" for n in METHODS.names)
 
 
 def _add_run(sub) -> None:
@@ -602,8 +564,8 @@ def _add_run(sub) -> None:
     run.add_argument("--suite", default="libero_10")
     run.add_argument("--task", type=int, default=0)
     run.add_argument("--init", type=_INDEX, default=0, help="official init state index")
-    run.add_argument("--method", default="seal", choices=["base", "random", "value", "seal"],
-                     help="value: V-GPS re-ranking with a `seal train value` checkpoint (--value-ckpt)")
+    methods, methods_help = _method_choices()
+    run.add_argument("--method", default="seal", choices=methods, help=methods_help)
     run.add_argument("--max-steps", type=_COUNT, default=None, help="default: the suite's limit")
     run.add_argument("--seed", type=int, default=0)
     run.add_argument("--no-video", action="store_true")
@@ -764,9 +726,8 @@ def _add_verify(sub) -> None:
                                 "and the oracle's label, as parquet (resumable; docs/verifier.md)")
     col.add_argument("--suite", default="libero_10")
     col.add_argument("--tasks", default="0", help="comma-separated task ids")
-    col.add_argument("--policy", default="scripted", help="who proposes candidates: scripted | vla | remote | ...")
-    col.add_argument("--knobs", default="misaligned", choices=["clean", "misaligned"],
-                     help="scripted expert's failure setting")
+    col.add_argument("--policy", default="scripted", help="who proposes candidates: " + _policy_help())
+    col.add_argument("--knobs", default=_knobs()[0], choices=_knobs()[1], help="scripted expert's failure setting")
     col.add_argument("--per-task", type=_COUNT, default=100, help="cases kept per task")
     col.add_argument("--balance", action="store_true", help="keep as many failures as successes per task")
     col.add_argument("--early-exit", action="store_true",
@@ -782,13 +743,8 @@ def _add_verify(sub) -> None:
     col.add_argument("--max-steps", type=_COUNT, default=None, help="per episode (default: the suite's limit)")
     col.add_argument("--workers", type=_COUNT, default=None, help="simulator processes (default: min(K, cores))")
     col.add_argument("--out", required=True, help="collection directory (re-run with the same one to continue)")
-    group = col.add_argument_group("method options (seal.steer.method.MethodSpec)")
-    for flag, kind, help_text in _METHOD_OPTIONS:
-        if flag not in ("--policy", "--knobs", "--verifier", "--model", "--false-positive", "--false-negative",
-                        "--value-ckpt", "--value-goal"):
-            group.add_argument(flag, type=kind, default=None, help=help_text)
-    col.set_defaults(func=_cmd_verify, verifier=None, model=None, false_positive=None, false_negative=None,
-                     value_ckpt=None, value_goal=None)
+    _add_method_options(col, without=_collect_fixes())
+    col.set_defaults(func=_cmd_verify)
     dem = verify_sub.add_parser("from-demos", help="cases from recorded demonstrations: replay each, stop along every "
                                 "sub-plan (the hard negatives: almost there), label by the oracle (training data only)")
     dem.add_argument("--dataset", required=True, help="a `seal demos record` dataset (sampled starts)")
@@ -876,10 +832,8 @@ def _add_report(sub) -> None:
 
 def _add_serve(sub) -> None:
     serve = sub.add_parser("serve", help="serve a SEAL policy over openpi's websocket protocol (docs/serving.md)")
-    serve.add_argument("--policy", default="scripted",
-                       help="scripted (default): the scripted expert | vla[:PATH]: a learned VLA checkpoint "
-                            "(default: the shipped one; vla:twin for its twin)")
-    serve.add_argument("--knobs", default="misaligned", choices=["clean", "misaligned"], help="scripted only")
+    serve.add_argument("--policy", default="scripted", help=_policy_help(_served) + " (default scripted)")
+    serve.add_argument("--knobs", default=_knobs()[0], choices=_knobs()[1], help="scripted only")
     serve.add_argument("--host", default="127.0.0.1", help="0.0.0.0 to accept other machines")
     serve.add_argument("--port", type=int, default=8000, help="0: any free port (printed on stdout)")
     serve.add_argument("--task", default="", help="scripted: task for clients that do not configure one, e.g. "

@@ -9,6 +9,7 @@ import numpy as np
 
 from seal.benchmarks.common import trials_of
 from seal.errors import InvalidInput
+from seal.sim.observation import IMAGE_SIZE
 from seal.sim.pool import EnvPool
 from seal.sim.suites import get_task, parse_task_ids
 from seal.steer.build import build_episode
@@ -102,7 +103,15 @@ class PixelReadingExpert:
         return self._inner.act(obs_batch, reasoning, rows)
 
 
-RUNTIME_POLICIES = ("scripted", "pixels", "vla")
+PIXELS = "pixels"  # the runtime benchmark's stand-in: the scripted expert reading both cameras
+
+
+def runtime_policies() -> tuple[str, ...]:
+    """What `seal bench runtime --policy` takes: every policy that runs in this process (a registered
+    one that is not a client of another server), and the pixel-reading stand-in."""
+    from seal.policies import servable
+
+    return (*servable(), PIXELS)
 
 
 def run_runtime(args) -> dict:
@@ -111,7 +120,10 @@ def run_runtime(args) -> dict:
 
     ``render_ms``/``predict_ms`` split the wall time of the pool's step commands by the workers'
     own measured render and physics seconds (the two run interleaved on the same cores)."""
-    from seal.policies import make_policy
+    from dataclasses import replace
+
+    from seal.policies import POLICIES, make_policy
+    from seal.policies.base import images_for
 
     trials = trials_of(args, "runtime")
     try:
@@ -119,23 +131,30 @@ def run_runtime(args) -> dict:
     except ValueError:
         raise InvalidInput(f"--ks must be comma-separated K values, got {args.ks!r}") from None
     policy_name = getattr(args, "policy", None) or "scripted"
-    if policy_name.split(":")[0] not in RUNTIME_POLICIES:
-        raise InvalidInput(f"unknown --policy {policy_name!r} for bench runtime; valid: {', '.join(RUNTIME_POLICIES)}")
-    pixel = policy_name != "scripted"
-    render = getattr(args, "render", None) or ("fast" if pixel else "stock")
-    image_size = getattr(args, "image_size", None) or 64
-    learned = policy_name.startswith("vla")
-    ckpt = policy_name.partition(":")[2]  # vla:PATH; '' = the shipped reasoning model
-    if learned:  # a learned policy sees what it was trained on
-        from seal.policies.vla.checkpoint import read_config
-        from seal.policies.vla.locate import resolve_checkpoint
-
-        trained = read_config(resolve_checkpoint(ckpt)).image_size
-        if getattr(args, "image_size", None) not in (None, trained):
-            raise InvalidInput(f"--image-size {args.image_size}: the VLA checkpoint was trained at {trained} px")
-        image_size = trained
+    name, colon, path = policy_name.partition(":")
+    if name not in runtime_policies() or (colon and (name == PIXELS or not POLICIES.options(name).checkpoint)):
+        raise InvalidInput(f"unknown --policy {policy_name!r} for bench runtime; valid: {', '.join(runtime_policies())}")
+    # the stand-in is the scripted expert, misaligned as every runtime row has been
+    policy_key = "scripted" if name == PIXELS else name
+    options = POLICIES.options(policy_key)(**({"knobs": "misaligned"} if policy_key == "scripted" else {}))
+    if colon:
+        options = replace(options, **{options.checkpoint: path})
     task = _tasks(args, "5")[0]
     spec = get_task(args.suite, task)
+    # what the policy reads: its state (nothing rendered), or its cameras at the size it declares
+    probe = make_policy(policy_key, options, spec, seed=0)
+    try:
+        reads = images_for(probe, probe.privileged_atoms())
+    finally:
+        probe.close()
+    pixel = name == PIXELS or bool(reads)
+    render = getattr(args, "render", None) or ("fast" if pixel else "stock")
+    image_size = getattr(args, "image_size", None) or 64
+    if name != PIXELS and reads:  # a policy that reads its cameras sees them at the size it was trained at
+        size = IMAGE_SIZE if reads is True else reads
+        if getattr(args, "image_size", None) not in (None, size):
+            raise InvalidInput(f"--image-size {args.image_size}: the {name} policy was trained at {size} px")
+        image_size = size
     latencies = (0.0,) if pixel or not args.latency else (0.0, args.latency)
     rows = []
     for latency in latencies:
@@ -146,15 +165,16 @@ def run_runtime(args) -> dict:
                     pool.prepare_render((image_size,))  # set-up, not per-step time
                 verifier = OracleVerifier() if latency == 0 else FixedLatencyOracle(latency)
                 # arrival order: what is measured is the paper's overlap of verification and sampling
-                method = MethodSpec(method="seal", k=k, knobs="misaligned", render=render, verify_order="arrival",
-                                    policy="vla" if learned else "scripted", policy_ckpt=ckpt if learned else "")
+                method = MethodSpec(method="seal", k=k, render=render, verify_order="arrival", policy=policy_key,
+                                    policy_options=options)
                 steps = wall = succeeded = 0
                 timing = {"sampling_s": 0.0, "predict_s": 0.0, "verify_wait_s": 0.0, "physics_cpu_s": 0.0,
                           "render_cpu_s": 0.0}
                 for trial in range(trials):
-                    policy = make_policy(method.policy, method, spec, seed=trial) if learned \
-                        else make_policy("scripted", method, spec, seed=0)
-                    if policy_name == "pixels":
+                    # the scripted expert's rows repeat one seed (only the init state changes); any other
+                    # policy's trials vary it
+                    policy = make_policy(policy_key, options, spec, seed=0 if policy_key == "scripted" else trial)
+                    if name == PIXELS:
                         policy = PixelReadingExpert(policy, image_size)
                     try:
                         with build_episode(method, spec, seed=0, pool=pool, verifier=verifier, policy=policy,
@@ -194,7 +214,7 @@ def run_runtime(args) -> dict:
                    "seconds; total_ms also holds what no column names (sub-plan start observations, bookkeeping)."
                    + (" policy 'pixels' is the scripted expert reading both cameras at every chunk, standing "
                       "in for a learned VLA's rendering (its network time is not in sampling_ms)."
-                      if policy_name == "pixels" else "")
+                      if name == PIXELS else "")
                    + (f" Rows with verifier_latency_s > 0 use the {STAND_IN}." if len(latencies) > 1 else "")}
     plot = getattr(args, "plot", None)
     if plot:

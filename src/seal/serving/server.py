@@ -47,7 +47,6 @@ from seal.serving import protocol as P
 log = logging.getLogger(__name__)
 
 PolicyFactory = Callable[[str], Any]  # task key (e.g. "libero_10/0") -> a ReasoningPolicy
-POLICIES = ("scripted", "vla")  # `seal serve --policy scripted | vla[:PATH]`
 
 
 def check_port(port: Any) -> int:
@@ -72,16 +71,57 @@ def task_spec(task: Any):
         raise InvalidInput(f"unknown task {task!r}: {exc}") from None
 
 
+def policy_server(name: str, options, *, seed: int = 0, max_batch: int = 64, plain: bool = False,
+                  task: str = "") -> tuple[PolicyFactory, P.ServerInfo, dict, str | None]:
+    """What `seal serve` serves for a registered policy: (factory, info, metadata, default task).
+
+    The learned VLA loads its weights once, here, and shares them across sessions; the scripted
+    expert builds a policy for whatever task a client configures. Any other policy gets a session
+    of its own from `seal.policies.make_policy` and describes itself (reasoning, privileged state,
+    image size) through one built now for ``task``, which it therefore needs."""
+    from seal.policies import POLICIES
+    from seal.policies.options import ScriptedOptions, VLAOptions
+
+    meta = {"policy": name, "action_dim": 7, "action_horizon": 16}
+    if isinstance(options, VLAOptions):  # loads (and checks) the checkpoint now: a bad one fails before listening
+        factory = vla_factory(options.policy_ckpt, seed=seed)
+        meta.update(checkpoint=factory.source, weights_sha256=factory.manifest.get("weights_sha256", "")[:12],
+                    reasoning_model=factory.model.cfg.reasoning, image_size=factory.model.cfg.image_size)
+        return factory, vla_info(factory, max_batch, plain=plain), meta, task  # it reads pixels: no task needed
+    if isinstance(options, ScriptedOptions):
+        meta["knobs"] = options.knobs
+        return scripted_factory(options.knobs, seed=seed), scripted_info(max_batch, plain=plain), meta, task or None
+    if not task:
+        raise InvalidInput(f"seal serve --policy {name}: give --task (a task it is built for now, to describe itself)")
+    from seal.policies import make_policy
+    from seal.policies.base import images_for
+
+    def make(key: str):
+        return make_policy(name, POLICIES.options_of(name, options), task_spec(key), seed=seed)
+
+    probe = make(task)
+    try:
+        atoms = probe.privileged_atoms()
+        images = images_for(probe, atoms)
+        info = P.ServerInfo(reasoning=probe.thinks and not plain, batch=not plain, max_batch=max_batch, control=True,
+                            privileged=atoms is not None, images=bool(images),
+                            **({"image_size": images} if images and images is not True else {}),
+                            version=P.PROTOCOL_VERSION)
+    finally:
+        probe.close()
+    return make, info, meta, task
+
+
 def scripted_factory(knobs: str = "misaligned", seed: int = 0) -> PolicyFactory:
     """The scripted expert for whatever task a client configures (built through the policy
     registry, like every other policy)."""
     from seal.policies import make_policy
-    from seal.steer.method import MethodSpec
+    from seal.policies.options import ScriptedOptions
 
-    spec = MethodSpec(policy="scripted", knobs=knobs)  # fail on a bad name now, not at the first client
+    options = ScriptedOptions(knobs=knobs)  # fail on a bad name now, not at the first client
 
     def make(task: str):
-        return make_policy("scripted", spec, task_spec(task), seed=seed)
+        return make_policy("scripted", options, task_spec(task), seed=seed)
 
     return make
 
