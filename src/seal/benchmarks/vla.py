@@ -47,6 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from seal.benchmarks.common import median_ms
+from seal.errors import InvalidInput
 
 ROLLOUT_EPISODE0 = 1000  # rollout starts: start_seed(task, 1000 + e); recordings use episodes below 1000
 
@@ -62,7 +63,6 @@ SIZES = {
 
 
 def _config(name: str, vocab_size: int):
-    from seal.errors import InvalidInput
     from seal.policies.vla.model import VLAConfig
 
     if name not in SIZES:
