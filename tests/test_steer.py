@@ -382,10 +382,17 @@ def test_a_declared_completion_is_verified(pool, tmp_path):
     """SEAL asks the verifier whether the instruction holds when the policy says the task is done:
     the oracle refuses (the book is not on the shelf yet) and the policy goes back to its last
     claimed sub-plan; a verifier that agrees, or done_check="trust", ends the episode there."""
+    from seal.collect import CaseRecorder, ImagesOracle
+
     config = SteerConfig(method="seal", k=2, rounds=1, subplan_budget=60, max_steps=200, done_check="verify")
+    recorder = CaseRecorder({"task": BOOK.key, "init_source": "official", "init_index": 0, "episode": 0})
     with Trace(tmp_path / "verify.jsonl") as trace:
-        result = Steerer(pool, DeclaresDoneEarly(expert_policy(BOOK, FailureKnobs(), seed=0)), OracleVerifier(),
-                         config, trace=trace).run(0)
+        result = Steerer(pool, DeclaresDoneEarly(expert_policy(BOOK, FailureKnobs(), seed=0)), ImagesOracle(),
+                         config, trace=trace, subscribers=(recorder,)).run(0)
+    # a case collector keeps the task-level question as a case of kind "task", labelled by the goal
+    task_cases = [r for r in recorder.rows if r["ended_by"] == "done_check"]
+    assert task_cases and task_cases[0]["kind"] == "task" and task_cases[0]["label"] is False
+    assert task_cases[0]["subplan"] == BOOK.instruction
     checks = [e for e in read_trace(tmp_path / "verify.jsonl") if e["event"] == "done_check"]
     assert result.done_checks and result.done_checks[0] is False and checks[0]["refused"] is True
     assert checks[0]["back_to"] == result.subplans[-1]  # the last sub-plan it claimed done, undone

@@ -180,6 +180,9 @@ class Steerer:
                                 goal_atoms=tuple(self._goal_atoms()))
         final = self._observe(0, images=self.verifier.needs_images, atoms=self.verifier.atoms_needed(request, self._objects))
         request.scene, request.final_agent, request.final_wrist = final.scene, final.agent, final.wrist
+        # published like a candidate's request, so case collectors keep task-level cases too
+        self.emit("verify_request", request=request, subplan=self._subplan_index, round=0, slot=0, steps=0,
+                  ended_by="done_check")
         result.verifier_calls += 1
         t0 = time.perf_counter()
         verdict = background.submit(request).result()

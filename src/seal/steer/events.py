@@ -6,7 +6,9 @@ The loop (`seal.steer.engine.Steerer`) publishes what happens as ``(event, field
     verify_request  request, subplan, round, slot, steps, ended_by
                                                             a candidate goes to the verifier; ``request``
                                                             is the `VerifyRequest` exactly as it is judged
-                                                            (ended_by "midway": a mid-rollout check)
+                                                            (ended_by "midway": a mid-rollout check;
+                                                            "done_check": the task-level question asked when
+                                                            the policy says the task is complete)
     round_end    subplan, round, candidates, reasoning      every candidate of a round has ended;
                                                             the pool's slots still hold their end states
     candidate    round, slot, steps, ended_by, error, snapshot, verdict, t_start, t_end, t_verified
