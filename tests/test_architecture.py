@@ -295,6 +295,24 @@ def test_sim_imports_only_sim():
     assert not broken, "sim is the bottom layer: " + "; ".join(broken)
 
 
+CLI_SHARED = ("seal.cli.common",)  # what the command modules share
+CLI_ENTRY = ("seal.cli.__main__",)  # `python -m seal.cli`
+
+
+def test_cli_command_modules_import_no_other_command():
+    """seal.cli is one module per command, its parser built from them by seal.cli itself: a command
+    module imports no other command module (nor the package), only the shared module; the shared
+    module imports no command; and every command module is one the package builds the parser from."""
+    commands = [n for n in MODULES if n.startswith("seal.cli.") and n not in CLI_SHARED + CLI_ENTRY]
+    assert len(commands) >= 10, commands
+    broken = [f"{name}:{line} {how}" for name in commands + list(CLI_SHARED)
+              for dep, line, how in _dependencies(MODULES[name])
+              if _in(dep, "seal.cli") and dep != name and (name in CLI_SHARED or dep not in CLI_SHARED)]
+    assert not broken, "command modules share only seal.cli.common: " + "; ".join(broken)
+    built_from = {dep for dep, _, _ in _dependencies(MODULES["seal.cli"])}
+    assert not [n for n in commands if n not in built_from], "seal.cli must import every command module"
+
+
 def test_no_private_names_across_modules():
     """``from seal.x.y import _name`` only in seal.x.y itself: another module's private names are
     not an interface (a helper two modules share is public in one of them)."""

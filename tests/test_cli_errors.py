@@ -347,9 +347,13 @@ def test_run_eval_checks_its_arguments_before_opening_the_store(tmp_path):
 def test_nonsense_counts_and_rates_are_refused_in_one_line(argv, words, tmp_path, capsys, monkeypatch):
     import seal.cli
 
-    for name in dir(seal.cli):  # no command may start: the value is refused while parsing
-        if name.startswith("_cmd_"):
-            monkeypatch.setattr(seal.cli, name, _never(name))
+    patched = 0
+    for command in seal.cli.COMMANDS:  # no command may start: the value is refused while parsing
+        for name in dir(command):
+            if name.startswith("_cmd_"):
+                monkeypatch.setattr(command, name, _never(f"{command.__name__}.{name}"))
+                patched += 1
+    assert patched >= len(seal.cli.COMMANDS)
     out = tmp_path / "out"
     code, err = _seal([a.replace("{out}", str(out)) for a in argv], capsys)
     _assert_refused(code, err, words)
