@@ -41,7 +41,6 @@ from seal.verify.base import Verdict
 if TYPE_CHECKING:
     from seal.sim.pool import SlotResult
     from seal.steer.background import BackgroundVerifier
-    from seal.steer.config import LoopSettings, SteerConfig
 
 
 @dataclass
@@ -89,10 +88,22 @@ class Subplan:
     first_agent: "np.ndarray | None" = None  # the verifier's "before" agent view (224 px; obs0's own if that is 224)
 
 
+class Settings(Protocol):
+    """What a selection reads of the loop's settings (`seal.steer.config.LoopSettings` and
+    `SteerConfig` have these fields); a protocol, so this module does not import the config that
+    names it."""
+
+    k: int
+    rounds: int
+    pick: str
+    value_goal: str
+    subplan_budget: int
+
+
 class Loop(Protocol):
     """What a selection may call on the steering loop (`seal.steer.engine.Steerer` implements it)."""
 
-    config: "SteerConfig"
+    config: Settings
     rng: np.random.Generator
 
     @property
@@ -140,13 +151,13 @@ class Selection:
     uses: tuple[str, ...] = ()
 
     @classmethod
-    def for_settings(cls, settings: "LoopSettings") -> "Selection":
+    def for_settings(cls, settings: Settings) -> "Selection":
         return cls()
 
-    def k(self, config: "LoopSettings") -> int:
+    def k(self, config: Settings) -> int:
         return 1
 
-    def rounds(self, config: "LoopSettings") -> int:
+    def rounds(self, config: Settings) -> int:
         return 1
 
     def check(self, verifier, scorer) -> None:
