@@ -35,6 +35,8 @@ def test_bench_sim(capsys):
     out = _bench(capsys, "sim", "--k", "2", "--workers", "1")
     _positive(out, "physics_step_ms", "restore_ms", "pool_chunk_ms", "serial_chunk_ms", "pool_speedup")
     assert out["restore_max_abs_diff"] == 0.0  # exact restore is the point of the benchmark
+    _positive(out, "control_step_ms_stock", "control_step_ms_fast", "control_step_speedup")
+    assert out["control_step_identical"] is True  # robosuite's step and the fast one, same states
     assert out["pool_k"] == 2 and out["pool_workers"] == 1
     # Render figures by prefix: the render part may report per size (render_ms_stock_<px>) and
     # gain image-quality keys; every time must be positive and every PSNR above 5 dB (None or inf

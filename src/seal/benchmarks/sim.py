@@ -1,7 +1,10 @@
-"""`seal bench sim`: physics step, exact restore, observations against the package's own
-camera path, stock vs fast rendering per resolution, pool speedup."""
+"""`seal bench sim`: physics step (robosuite's and the fast one side by side), exact restore,
+observations against the package's own camera path, stock vs fast rendering per resolution, pool
+speedup."""
 
 from __future__ import annotations
+
+import time
 
 import numpy as np
 
@@ -65,6 +68,36 @@ def _states(world: LiberoWorld, rng, n: int) -> list:
     return out
 
 
+def _control_steps(world: LiberoWorld, actions: np.ndarray, rounds: int = 8) -> dict:
+    """One 20 Hz control step through robosuite's ``env.step`` and through `seal.sim.fast_step`,
+    measured side by side: the same start and actions in every round, the two taking turns at
+    going first, median of every step's time. Whether each round ends in the same snapshot (bit
+    for bit) is reported with it."""
+    start, default = world.snapshot(), world.fast_step
+    times: dict[bool, list[float]] = {False: [], True: []}
+    identical = True
+    for r in range(rounds):
+        ends = {}
+        for fast in ((False, True) if r % 2 == 0 else (True, False)):
+            world.restore(start)
+            world.fast_step = fast
+            for a in actions:
+                t0 = time.perf_counter()
+                world.step(a)
+                times[fast].append(time.perf_counter() - t0)
+            ends[fast] = world.snapshot()
+        identical &= ends[False] == ends[True]
+    world.fast_step = default
+    stock, fast = (float(np.median(times[f])) * 1e3 for f in (False, True))
+    return {
+        "control_step_ms_stock": round(stock, 3),
+        "control_step_ms_fast": round(fast, 3),
+        "control_step_speedup": round(stock / fast, 2),
+        "control_step_identical": bool(identical),
+        "control_step_fast_unsupported": world.fast_step_unsupported or None,
+    }
+
+
 RENDER_SIZES = (64, 96, 128, IMAGE_SIZE)  # policy resolutions to choose from, and the verifier's
 
 
@@ -80,9 +113,11 @@ def run(args) -> dict:
     reset_ms = median_ms(lambda: world.reset(next(episodes)), 8)
     world.reset(0)
 
-    # physics: one 20 Hz control step (25 MuJoCo substeps), cameras off
+    # physics: one 20 Hz control step (25 MuJoCo substeps), cameras off, the world's default step
     it = iter(actions)
     physics_ms = median_ms(lambda: world.step(next(it)), 40)
+    # and robosuite's step against the fast one, interleaved from the state reached
+    control = _control_steps(world, actions[40:60])
 
     # exact restore: snapshot, run 50 steps, restore, replay, compare bit for bit
     world.reset(1)
@@ -147,6 +182,7 @@ def run(args) -> dict:
         "task": f"{args.suite}/{args.task}",
         "reset_ms": reset_ms,
         "physics_step_ms": physics_ms,
+        **control,
         "restore_ms": restore_ms,
         "restore_max_abs_diff": diff,
         **package,

@@ -56,11 +56,11 @@ def ignore_interrupts() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-def _worker_main(conn: Connection, task: TaskSpec, render_mode: str, physics=None) -> None:
+def _worker_main(conn: Connection, task: TaskSpec, render_mode: str, physics=None, fast_step: bool = True) -> None:
     ignore_interrupts()
     from seal.sim.world import LiberoWorld
 
-    world = LiberoWorld(task, render_mode=render_mode, physics=physics)
+    world = LiberoWorld(task, render_mode=render_mode, physics=physics, fast_step=fast_step)
     slots: dict[int, Snapshot] = {}
     conn.send(("ready", os.getpid()))
     while True:
@@ -191,9 +191,10 @@ def wait_awake(objects: list, timeout: float, *, waiter=wait, clock=time.monoton
 
 
 class _Worker:
-    def __init__(self, ctx, task: TaskSpec, render_mode: str, physics=None):
+    def __init__(self, ctx, task: TaskSpec, render_mode: str, physics=None, fast_step: bool = True):
         self.conn, child = ctx.Pipe()
-        self.process = ctx.Process(target=_worker_main, args=(child, task, render_mode, physics), daemon=True)
+        self.process = ctx.Process(target=_worker_main, args=(child, task, render_mode, physics, fast_step),
+                                   daemon=True)
         # Started with SIGINT ignored (inherited by the new interpreter, which keeps ignoring it), so a
         # Ctrl-C while it imports cannot print a traceback either; the parent's own handler is restored.
         main = threading.current_thread() is threading.main_thread()
@@ -231,7 +232,7 @@ class EnvPool:
     """K slots of one task's world over ``workers`` processes (default: min(K, cores))."""
 
     def __init__(self, task: TaskSpec | tuple[str, int], k: int, *, workers: int | None = None,
-                 render_mode: str = "stock", timeout: float = 600.0, physics=None):
+                 render_mode: str = "stock", timeout: float = 600.0, physics=None, fast_step: bool = True):
         if not isinstance(task, TaskSpec):
             task = get_task(*task)
         if k < 1:
@@ -242,10 +243,11 @@ class EnvPool:
             raise InvalidInput(f"workers must be in 1..{k} for k={k}, got {workers}")
         self.task, self.k, self.render_mode, self.timeout = task, k, render_mode, timeout
         self.physics = physics  # a PhysicsMismatch for every slot's world, or None
+        self.fast_step = fast_step  # the worlds' control step (LiberoWorld.fast_step): same states either way
         self._ctx = mp.get_context("spawn")  # never fork a process holding GL/MuJoCo state
         self._owner = [i % workers for i in range(k)]  # slot -> worker index
         self._latest: list[Snapshot | None] = [None] * k
-        self._workers = [_Worker(self._ctx, task, render_mode, physics) for _ in range(workers)]
+        self._workers = [_Worker(self._ctx, task, render_mode, physics, fast_step) for _ in range(workers)]
         for w in self._workers:
             w.wait_ready(timeout)
         self.crashes = 0
@@ -394,7 +396,7 @@ class EnvPool:
     def _respawn(self, wi: int) -> None:
         self.crashes += 1
         self._workers[wi].kill()
-        worker = _Worker(self._ctx, self.task, self.render_mode, self.physics)
+        worker = _Worker(self._ctx, self.task, self.render_mode, self.physics, self.fast_step)
         worker.wait_ready(self.timeout)
         self._workers[wi] = worker
         # Put each of its slots back where it was last seen.

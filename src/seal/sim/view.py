@@ -44,7 +44,7 @@ class ViewClock:
         pre_action = env._pre_action
 
         def remember_then_act(action, policy_step=False):
-            self._pre_qpos[:] = env.sim.data.qpos
+            self.remember_positions()
             return pre_action(action, policy_step)
 
         env._pre_action = remember_then_act
@@ -58,6 +58,16 @@ class ViewClock:
 
         self._observable = Observable(name=_NAME, sensor=view, sampling_rate=env.control_freq)
         env.add_observable(self._observable)
+
+    def remember_positions(self) -> None:
+        """Keep the substep's positions before it integrates (the hook robosuite's stock step runs
+        through ``_pre_action``; `seal.sim.fast_step` calls it itself)."""
+        self._pre_qpos[:] = self._env.sim.data.qpos
+
+    def tick(self, timestep: float) -> None:
+        """Advance this observable's clock by one substep, sampling when due: what robosuite's
+        ``_update_observables`` does for it after every substep (`seal.sim.fast_step`)."""
+        self._observable.update(timestep=timestep, obs_cache=self._env._obs_cache)
 
     def restart(self) -> None:
         """Sample the current state as openpi's ``reset()`` then ``set_init_state()`` leave it:

@@ -29,6 +29,7 @@ from seal.sim.observation import (
     to_policy_image,
 )
 from seal.sim import background, layout
+from seal.sim.fast_step import FastControl, unsupported
 from seal.sim.render import RENDER_MODES, SceneRenderer
 from seal.sim.scene import SceneReader, SceneState
 from seal.sim.snapshot import Snapshot
@@ -122,7 +123,7 @@ class LiberoWorld:
     """A single LIBERO task world. Not thread-safe; one per process or per pool slot."""
 
     def __init__(self, task: TaskSpec | tuple[str, int], *, render_mode: str = "stock",
-                 physics: PhysicsMismatch | None = None):
+                 physics: PhysicsMismatch | None = None, fast_step: bool = True):
         if not isinstance(task, TaskSpec):
             task = get_task(*task)
         if render_mode not in RENDER_MODES:
@@ -141,6 +142,11 @@ class LiberoWorld:
         self._starts = layout.OpenpiStarts(self._env)  # per-episode fixture placements, on demand
         self._fixtures = layout.fixture_bodies(self._env)  # their bodies, read on every snapshot
         self._view = ViewClock(self._env)  # the instant observations show (seal.sim.view)
+        # robosuite's control step without its unread work, bit-identical (seal.sim.fast_step);
+        # where robosuite, LIBERO or MuJoCo differ from what it replays, the stock env.step runs
+        self.fast_step_unsupported = unsupported(self._env)
+        self._fast: FastControl | None = None
+        self.fast_step = fast_step
         self._renderers: dict[int, SceneRenderer] = {}  # one per image size in use (policy, verifier)
         self.render_seconds = 0.0  # wall time spent drawing camera images (runtime breakdowns)
         self._render_model: mujoco.MjModel | None = None
@@ -179,6 +185,21 @@ class LiberoWorld:
     @property
     def steps(self) -> int:
         return self._steps
+
+    @property
+    def fast_step(self) -> bool:
+        """Whether control steps run `seal.sim.fast_step` (same states, less work) rather than
+        robosuite's ``env.step``; may be switched at any time. Asking for it where it is not
+        supported (``fast_step_unsupported`` says why) leaves the stock step on."""
+        return self._fast is not None
+
+    @fast_step.setter
+    def fast_step(self, on: bool) -> None:
+        if on and not self.fast_step_unsupported:
+            if self._fast is None:
+                self._fast = FastControl(self._env, self._view)
+        else:
+            self._fast = None
 
     # ---- episode control ---------------------------------------------------------------
     def reset(self, init_index: int = 0, *, settle: bool = True) -> None:
@@ -467,7 +488,10 @@ class LiberoWorld:
         return a
 
     def _physics_step(self, action: np.ndarray) -> None:
-        self._env.step(action)
+        if self._fast is not None:
+            self._fast.step(action)
+        else:
+            self._env.step(action)
         d = self.data
         if any(d.warning[w].number for w in _BAD_WARNINGS) or not (
             np.isfinite(d.qpos).all() and np.isfinite(d.qvel).all()
