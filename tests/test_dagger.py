@@ -27,9 +27,9 @@ def labelled(tmp_path_factory):
     snaps = []
     original = dagger.teacher_label
 
-    def capturing(expert, obs):
+    def capturing(expert, obs, world=None):
         snaps.append(dagger._CACHE["world"].snapshot())
-        return original(expert, obs)
+        return original(expert, obs, world)
 
     job = dagger.DaggerJob("libero_10", TASK, 0, 1, str(resolve_checkpoint("reason")), 0.5, "fast", 64, 30)
     dagger.teacher_label = capturing
@@ -53,17 +53,44 @@ def test_every_label_is_the_experts_answer_for_that_exact_state(labelled):
         world.restore(snap)
         expert = ScriptedExpert.for_world(world)  # a new expert: nothing carried over from the rollout
         obs = world.observe(images=False, privileged_atoms=expert.privileged_atoms())
+        np.testing.assert_allclose(obs.state, episode.states[i], atol=1e-6)  # the stored state is that state
         reasoning = expert.reason(obs)
         assert row["reasoning"] == reasoning.text() and row["now"] == reasoning.now
         expert.begin(1)
         chunk = expert.act([obs], reasoning)[0]
         assert row["valid"] and not chunk.think
+        label = row["chunk"].reshape(16, 7)
         # Up to the kinematics' staleness: after a step, MuJoCo's site positions (what the scene reads for the
         # end effector) are those of the last substep's start, ~0.5 mm behind; a restored world recomputes
         # them. The expert is a smooth controller, so its chunk moves by ~0.01 (action units).
-        np.testing.assert_allclose(row["chunk"].reshape(16, 7), np.asarray(chunk.actions, np.float32), atol=0.03)
+        np.testing.assert_allclose(label[:5], np.asarray(chunk.actions, np.float32)[:5], atol=0.03)
+        assert row["chunk_steps"] == 16  # no episode end within 16 steps here
+        if i in (0, 3):
+            # closed loop: the rest of the label is what the expert does when it goes on from there,
+            # planning afresh every 5 steps (as in a recorded demonstration), not its one-shot tail
+            for block in (1, 2):
+                for action in label[5 * (block - 1):5 * block]:
+                    world.step(action)
+                obs = world.observe(images=False, privileged_atoms=expert.privileged_atoms())
+                replanned = expert.act([obs], reasoning)[0]
+                assert not replanned.think
+                np.testing.assert_allclose(label[5 * block:5 * block + 5], replanned.actions[:5], atol=0.03)
         assert row["think"] == (row["vla_now"] != row["now"])
-        np.testing.assert_allclose(obs.state, episode.states[i], atol=1e-6)  # the stored state is that state
+
+
+def test_labels_of_older_collections_train_only_their_executed_prefix(tmp_path):
+    """Collections from before closed-loop labels stored the expert's one-shot extrapolation, whose
+    tail is not what the expert executes: only the first ACTION_HORIZON steps count there."""
+    import pyarrow as pa
+
+    from seal.policies.base import ACTION_HORIZON
+
+    table = pa.table({"reasoning": ["a"], "vla_reasoning": ["a"], "now": ["x"], "think": [False], "valid": [True],
+                      "chunk": pa.array([[0.0] * 112], pa.list_(pa.float32(), 112))})
+    pq.write_table(table, tmp_path / "old.parquet")
+    assert dagger.read_frame_labels(tmp_path, {"labels_path": "old.parquet"})["chunk_steps"].tolist() == [ACTION_HORIZON]
+    pq.write_table(table.append_column("chunk_steps", pa.array([11], pa.int64())), tmp_path / "new.parquet")
+    assert dagger.read_frame_labels(tmp_path, {"labels_path": "new.parquet"})["chunk_steps"].tolist() == [11]
 
 
 def test_a_round_resumes_without_recording_anything_twice_and_trains_beside_demos(tmp_path, capsys):

@@ -411,16 +411,26 @@ def test_dropped_connection_is_reopened_and_a_dead_server_is_a_clear_error(obs):
 
 
 def test_seal_serve_stopping_mid_episode_ends_the_run_with_a_clear_error(pool):
+    # The server is stopped from inside the episode, at its second batch of candidates, so the
+    # test does not depend on how fast this machine plays an episode (a timer did: a fast machine
+    # finished the whole episode before the timer fired).
+    class StopsServerOnSecondAct(OpenpiPolicy):
+        calls = 0
+
+        def act(self, obs_batch, reasoning, **kw):
+            StopsServerOnSecondAct.calls += 1
+            if StopsServerOnSecondAct.calls == 2:
+                srv.stop()
+            return super().act(obs_batch, reasoning, **kw)
+
     with ServerThread(_scripted()) as srv:
-        policy = OpenpiPolicy(ClientConfig(port=srv.port, **FAST), task=BOOK.key)
-        timer = threading.Timer(1.5, srv.stop)
-        timer.start()
+        policy = StopsServerOnSecondAct(ClientConfig(port=srv.port, **FAST), task=BOOK.key)
         t0 = time.perf_counter()
         with pytest.raises(P.PolicyServerError, match="cannot reach the policy server"):
             Steerer(pool, policy, OracleVerifier(), SteerConfig(method="seal", k=4)).run(0)
+        assert StopsServerOnSecondAct.calls == 2
         assert time.perf_counter() - t0 < 20
         policy.close()
-        timer.cancel()
 
 
 def test_silent_server_times_out_instead_of_hanging(obs):

@@ -83,6 +83,7 @@ class DaggerJob:
     start_seed: int | None = None  # None: this round's own start (`dagger_seed`); held-out checks pass theirs
     teacher_check: bool = False  # also let the expert finish alone from one boundary (`teacher_recovers`)
     verifier_cases: bool = False  # also take verification cases from the VLA's states (`VerifierCaseTaker`)
+    closed_loop: bool = True  # chunk labels: the expert's executed actions from each state (`teacher_label`)
 
 
 @dataclass
@@ -91,10 +92,20 @@ class TeacherLabel:
     chunk: np.ndarray  # (PREDICT_HORIZON, 7)
     valid: bool
     why: str = ""  # why the teacher has no answer (valid False)
+    steps: int = PREDICT_HORIZON  # how many of the chunk's actions are the teacher's (the rest: the episode ended)
 
 
-def teacher_label(expert, obs) -> TeacherLabel:
-    """What the scripted expert would write and do in ``obs``'s state (it reads only the scene)."""
+def teacher_label(expert, obs, world=None) -> TeacherLabel:
+    """What the scripted expert would write and do in ``obs``'s state (it reads only the scene).
+
+    With ``world`` (in ``obs``'s state) the chunk is *closed-loop*: what the expert does over the
+    next PREDICT_HORIZON steps when it runs from here, re-planning every ACTION_HORIZON steps and
+    moving to its next sub-plan when one is done, exactly as in a recorded demonstration (whose
+    training chunks are windows of its executed actions). The world is restored afterwards.
+    Without it, the expert's own one-shot extrapolation: its first ACTION_HORIZON steps are what it
+    executes, its tail is not (on replayed demonstrations the tail differs from the executed
+    actions by about half their variance, `docs/dagger.md`).
+    """
     reasoning = expert.reason(obs)
     empty = np.zeros((PREDICT_HORIZON, 7), np.float32)
     if reasoning.finished:
@@ -107,9 +118,50 @@ def teacher_label(expert, obs) -> TeacherLabel:
     if chunk.think:
         return TeacherLabel(reasoning, empty, False, f"the skill for {reasoning.now!r} says done, its sub-goal does not hold")
     actions = np.asarray(chunk.actions, np.float32)
+    steps = PREDICT_HORIZON
+    if world is not None:
+        actions, steps = _closed_loop(world, expert, reasoning, actions)
+        expert.reason(obs)  # the expert's own state back where the label was asked
     if not np.isfinite(actions).all():
         return TeacherLabel(reasoning, empty, False, "non-finite chunk")
-    return TeacherLabel(reasoning, actions, True)
+    return TeacherLabel(reasoning, actions, True, steps=steps)
+
+
+def _closed_loop(world, expert, reasoning: Reasoning, first: np.ndarray) -> tuple[np.ndarray, int]:
+    """The expert's next PREDICT_HORIZON executed actions from the world's state (restored after),
+    starting with ``first``; (actions padded with the last one, how many are real)."""
+    atoms = expert.privileged_atoms()
+    snap = world.snapshot()
+    taken: list[np.ndarray] = []
+    plan = first
+    try:
+        while True:
+            for action in plan[:ACTION_HORIZON]:
+                world.step(action)
+                taken.append(action)
+                if len(taken) == PREDICT_HORIZON or world.success():
+                    break
+            if len(taken) == PREDICT_HORIZON or world.success():
+                break
+            obs = world.observe(images=False, privileged_atoms=atoms)
+            chunk = expert.act([obs], reasoning)[0]
+            if chunk.think:  # this sub-plan is done: on to the next, as a demonstration would
+                reasoning = expert.reason(obs)
+                if reasoning.finished:
+                    break
+                expert.begin(1)
+                chunk = expert.act([obs], reasoning)[0]
+                if chunk.think:
+                    break
+            plan = np.asarray(chunk.actions, np.float32)
+    except SealError:
+        pass  # the teacher has no plan from there: the label is what it did up to that point
+    finally:
+        world.restore(snap)
+    out = np.empty((PREDICT_HORIZON, 7), np.float32)
+    out[:len(taken)] = taken
+    out[len(taken):] = taken[-1]
+    return out, len(taken)
 
 
 @dataclass
@@ -170,7 +222,7 @@ def run_dagger_episode(job: DaggerJob) -> tuple[DaggerJob, dict, Episode | None,
         while not world.success() and world.steps < max_steps:
             if check_at is not None and check is None and world.steps >= check_at:
                 check = (world.snapshot(), world.steps, len(rec.rows))
-            label = teacher_label(expert, obs)
+            label = teacher_label(expert, obs, world if job.closed_loop else None)
             # think: the sub-plan the VLA acts on is not the next one (done already, skipped or garbled)
             think = mine.now != label.reasoning.now
             rec.agent.append(obs.agent)
@@ -179,6 +231,7 @@ def run_dagger_episode(job: DaggerJob) -> tuple[DaggerJob, dict, Episode | None,
             rec.rows.append({"reasoning": label.reasoning.text(), "now": label.reasoning.now,
                              "vla_reasoning": mine.text(), "vla_now": mine.now, "think": bool(think),
                              "valid": label.valid, "why": label.why, "chunk": label.chunk.reshape(-1),
+                             "chunk_steps": label.steps if job.closed_loop else ACTION_HORIZON,
                              "step": world.steps})
             if taker is not None:
                 taker.boundary(grip_closed)
@@ -718,6 +771,7 @@ def _write_labels(ann: Path, index: int, episode: Episode, rows: list[dict], lab
         "why": pa.array([r["why"] for r in rows]),
         "step": pa.array([r["step"] for r in rows], pa.int64()),
         "chunk": pa.array([r["chunk"].astype(np.float32).tolist() for r in rows], pa.list_(pa.float32(), PREDICT_HORIZON * 7)),
+        "chunk_steps": pa.array([r["chunk_steps"] for r in rows], pa.int64()),
     })
     rel = labels_path.format(chunk=index // chunk_size, episode=index)
     path = ann / rel
@@ -736,12 +790,16 @@ def _write_labels(ann: Path, index: int, episode: Episode, rows: list[dict], lab
 
 
 def read_frame_labels(ann: Path, record: dict) -> dict[str, np.ndarray | list]:
-    """A DAgger episode's per-frame labels: texts, think, valid and chunks (T, 16, 7)."""
+    """A DAgger episode's per-frame labels: texts, think, valid, chunks (T, 16, 7) and how many of
+    each chunk's steps are labels (`chunk_steps`)."""
     import pyarrow.parquet as pq
 
     table = pq.read_table(Path(ann) / record["labels_path"]).to_pydict()
     chunks = np.asarray(table["chunk"], np.float32).reshape(-1, PREDICT_HORIZON, 7)
-    return {"reasoning": table["reasoning"], "vla_reasoning": table["vla_reasoning"], "now": table["now"],
+    # Collections before closed-loop labels stored the expert's one-shot extrapolation: only its
+    # first ACTION_HORIZON steps are what the expert executes, so only those are trained on.
+    steps = np.asarray(table.get("chunk_steps", [ACTION_HORIZON] * len(chunks)), np.int64)
+    return {"chunk_steps": steps, "reasoning": table["reasoning"], "vla_reasoning": table["vla_reasoning"], "now": table["now"],
             "think": np.asarray(table["think"], bool), "valid": np.asarray(table["valid"], bool), "chunks": chunks}
 
 

@@ -306,7 +306,8 @@ def _labelled_rollouts(ckpt: str, ids: list[int], *, n: int, render: str, suite:
             key = get_task(suite, task_id).key
             for e in range(n):
                 job = DaggerJob(suite, task_id, ROLLOUT_EPISODE0 + e, 0, str(where), 0.0, render, size, max_steps,
-                                start_seed=start_seed(key, ROLLOUT_EPISODE0 + e))
+                                start_seed=start_seed(key, ROLLOUT_EPISODE0 + e),
+                                closed_loop=False)  # only the labels' text is scored here
                 _, a, _, _ = run_dagger_episode(job)
                 rows.append({"task": key, "start_seed": a["start_seed"], "success": a["success"], "steps": a["steps"],
                              "subgoals": a["subgoals"],

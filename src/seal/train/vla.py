@@ -183,6 +183,7 @@ class Labels:
     # had an answer there at all (frames without one give no action or text sample, only think ones)
     chunks: np.ndarray | None = None  # (N, PREDICT_HORIZON, 7)
     usable: np.ndarray | None = None  # (N,) bool; None: every frame
+    chunk_steps: np.ndarray | None = None  # (N,) how many leading steps of each chunk are labels
     # per text: whether it is ever a target (the policy's own stale texts only condition think samples,
     # whose text loss is masked, so one too long for the reasoning segment is cut, not refused)
     target: np.ndarray | None = None
@@ -263,6 +264,7 @@ def _frame_labels(cache: FrameCache, records: dict[int, dict], root: Path | None
     instruction = np.zeros(n, np.int64)
     chunks = np.zeros((n, PREDICT_HORIZON, ACTION_DIM), np.float32)
     usable = np.zeros(n, bool)
+    chunk_steps = np.zeros(n, np.int64)
     think_frames, think_reason = [], []
 
     def text_id(t: str) -> int:
@@ -280,7 +282,9 @@ def _frame_labels(cache: FrameCache, records: dict[int, dict], root: Path | None
                 think_reason.append(text_id(lab["vla_reasoning"][t]))
         chunks[start:start + length] = lab["chunks"]
         usable[start:start + length] = lab["valid"]
-    return texts.labels(reason, instruction, think_frames, think_reason, chunks=chunks, usable=usable)
+        chunk_steps[start:start + length] = lab["chunk_steps"]
+    return texts.labels(reason, instruction, think_frames, think_reason, chunks=chunks, usable=usable,
+                        chunk_steps=chunk_steps)
 
 
 class Batcher:
@@ -317,7 +321,7 @@ class Batcher:
             agent_t, wrist_t = random_shift(agent_t, shift, gen), random_shift(wrist_t, shift, gen)
         if self.labels.chunks is not None:  # the teacher's whole chunk at this frame
             actions = self.labels.chunks[frames]
-            valid = np.ones(actions.shape[:2], bool)
+            valid = np.arange(PREDICT_HORIZON)[None] < self.labels.chunk_steps[frames][:, None]
         else:  # the recorded actions from this frame on
             window = frames[:, None] + np.arange(PREDICT_HORIZON)[None]
             valid = window < self.ends[frames][:, None]
