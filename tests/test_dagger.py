@@ -352,3 +352,15 @@ def test_a_round_writes_verifier_cases_once_and_they_train_beside_others(tmp_pat
                  "--image-size", "32", "--holdout-inits", "0", "--out", str(run)]) == 0
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert summary["step"] == 2 and summary["split"]["train"] == 25
+
+
+def test_bench_labels_closed_loop_tails_follow_the_executed_actions(capsys):
+    """`seal bench labels` on one expert episode: closed-loop tails are as close to what the expert
+    executed as the first steps are; one-shot tails are several times further off."""
+    assert main(["bench", "labels", "--tasks", "0", "--trials", "1"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["episodes"] == 1 and out["boundaries"] > 10
+    one, closed = out["one_shot"], out["closed_loop"]
+    assert closed["mse_executed_prefix"] == one["mse_executed_prefix"]  # the same first steps
+    assert closed["mse_tail"] <= 2 * closed["mse_executed_prefix"] + 0.005
+    assert one["mse_tail"] > 3 * closed["mse_tail"] and one["mse_tail"] > 0.1 * out["executed_action_var_arm"]

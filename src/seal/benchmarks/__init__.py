@@ -18,7 +18,8 @@ BENCHMARKS = {"sim": "seal.benchmarks.sim:run", "expert": "seal.benchmarks.exper
               "verifier": "seal.benchmarks.verifier:run",
               "verifier-sweep": "seal.benchmarks.sweep:run",
               "vla": "seal.benchmarks.vla:run",
-              "render": "seal.benchmarks.render:run"}
+              "render": "seal.benchmarks.render:run",
+              "labels": "seal.benchmarks.labels:run"}
 
 
 def run_benchmark(name: str, args) -> dict:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 # `--trials` when not given, per benchmark (what it counts differs: init states per task, trials of
 # the eval harness, round trips of `serve`). A value given is always honoured, never replaced.
-DEFAULT_TRIALS = {"expert": 50, "steer": 50, "runtime": 50, "eval": 3, "serve": 50, "verifier-sweep": 10}
+DEFAULT_TRIALS = {"expert": 50, "steer": 50, "runtime": 50, "eval": 3, "serve": 50, "verifier-sweep": 10, "labels": 1}
 
 
 def median_ms(fn, n: int, *, warmup: bool = False) -> float:

@@ -9,8 +9,9 @@ from seal.cli.common import COUNT, INDEX, NONNEGATIVE, RATE
 
 def add(sub) -> None:
     bench = sub.add_parser("bench", help="benchmarks; each prints one JSON object")
-    bench.add_argument("what", choices=["sim", "expert", "steer", "runtime", "eval", "serve", "annotate",
-                                                       "value", "verifier", "verifier-sweep", "vla", "render"])
+    from seal.benchmarks import BENCHMARKS
+
+    bench.add_argument("what", choices=list(BENCHMARKS))
     bench.add_argument("--ckpt", default=None, help="vla: checkpoint (default: a random-init model of the default "
                                                      "config; 'reason'/'twin': the shipped ones)")
     bench.add_argument("--annotations", default=None, help="vla: annotations for the held-out figures")
@@ -45,10 +46,12 @@ def add(sub) -> None:
     bench.add_argument("--round-name", default=None, help="vla --round-log: the round's label (default: the checkpoint)")
     bench.add_argument("--rollouts", type=INDEX, default=0,
                        help="vla with --ckpt: closed-loop episodes per task on fresh sampled starts (default 0: none)")
-    bench.add_argument("--tasks", default="", help="comma-separated task ids (expert: all; steer: 0,1,7; runtime: 5; render: 0,3,9)")
+    bench.add_argument("--tasks", default="", help="comma-separated task ids (expert: all; steer: 0,1,7; runtime: 5; render: 0,3,9; "
+                                                  "labels: 0,2,5)")
     bench.add_argument("--trials", type=COUNT, default=None,
                        help="expert/steer/runtime: trials (init states) per task (default 50); eval: trials per "
-                            "task (default 3); serve: round trips (default 50)")
+                            "task (default 3); serve: round trips (default 50); labels: expert episodes per task "
+                            "(default 1)")
     bench.add_argument("--max-steps", type=COUNT, default=None,
                        help="steer/runtime/eval: control steps per episode (default: the suite's limit)")
     bench.add_argument("--no-misaligned", action="store_true", help="expert: skip the misaligned setting")
