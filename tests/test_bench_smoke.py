@@ -31,6 +31,7 @@ def _fraction(x) -> bool:
     return isinstance(x, (int, float)) and 0.0 <= x <= 1.0
 
 
+@pytest.mark.slow  # ~60-100 s (stock and fast renders, PSNR against the package): `make test-slow`
 def test_bench_sim(capsys):
     out = _bench(capsys, "sim", "--k", "2", "--workers", "1")
     _positive(out, "physics_step_ms", "restore_ms", "pool_chunk_ms", "serial_chunk_ms", "pool_speedup")
@@ -107,6 +108,7 @@ def test_bench_render_attributes_the_fast_modes_error_to_meshes(capsys):
         assert shares == sorted(shares, reverse=True) and 0 < sum(shares) <= 1.0 + 1e-6
 
 
+@pytest.mark.slow  # ~80-120 s (starts a Ray cluster; the Ray backend keeps its own test in test_eval.py)
 def test_bench_eval(capsys):
     out = _bench(capsys, "eval", "--tasks", "5", "--trials", "1", "--k", "2", "--max-steps", "25")
     assert (out["trials_per_task"], out["trials_run_base"], out["trials_run_seal"]) == (1, 1, 1)

@@ -242,7 +242,9 @@ def test_ctrl_c_during_collect_prints_what_was_kept_and_no_worker_traceback(tmp_
     out = tmp_path / "cases"
     seal = Path(sys.executable).with_name("seal")
     cmd = [str(seal)] if seal.is_file() else [sys.executable, "-m", "seal.cli"]
-    proc = subprocess.Popen([*cmd, "verify", "collect", "--tasks", "0", "--per-task", "50", "--k", "2", "--workers",
+    # far more cases than it can collect before the interrupt: on a loaded machine a target of 50 was
+    # reached before the first shard showed up, and the run ended on its own instead of by Ctrl-C
+    proc = subprocess.Popen([*cmd, "verify", "collect", "--tasks", "0", "--per-task", "2000", "--k", "2", "--workers",
                              "2", "--init-source", "official", "--max-steps", "60", "--out", str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:

@@ -119,41 +119,50 @@ def teacher_label(expert, obs, world=None) -> TeacherLabel:
         return TeacherLabel(reasoning, empty, False, f"the skill for {reasoning.now!r} says done, its sub-goal does not hold")
     actions = np.asarray(chunk.actions, np.float32)
     steps = PREDICT_HORIZON
-    if world is not None:
-        actions, steps = _closed_loop(world, expert, reasoning, actions)
+    if world is not None:  # its first chunk is the one above: the expert plans the same way twice
+        actions, steps = _closed_loop(world, expert, reasoning, obs)
         expert.reason(obs)  # the expert's own state back where the label was asked
     if not np.isfinite(actions).all():
         return TeacherLabel(reasoning, empty, False, "non-finite chunk")
     return TeacherLabel(reasoning, actions, True, steps=steps)
 
 
-def _closed_loop(world, expert, reasoning: Reasoning, first: np.ndarray) -> tuple[np.ndarray, int]:
-    """The expert's next PREDICT_HORIZON executed actions from the world's state (restored after),
-    starting with ``first``; (actions padded with the last one, how many are real)."""
-    atoms = expert.privileged_atoms()
+def expert_steps(world, expert, obs, reasoning: Reasoning, atoms):
+    """The expert acting from the world's state as in a demonstration: each chunk's first
+    ACTION_HORIZON actions, then a fresh plan; on to its next sub-plan when one is done. Yields
+    (index within the chunk, action) *before* the world takes that step, so a caller can snapshot a
+    boundary or stop; it ends when the goal holds, the plan is finished, or a skill says "done"
+    right after a re-plan (the teacher has no move there). A `SealError` of a primitive propagates.
+    """
+    expert.begin(1)
+    fresh = False  # the reasoning was just re-read: a second "done" means there is no move
+    while not world.success() and not reasoning.finished:
+        chunk = expert.act([obs], reasoning)[0]
+        if chunk.think:
+            if fresh:
+                return
+            reasoning, fresh = expert.reason(obs), True
+            expert.begin(1)
+            continue
+        fresh = False
+        for i, action in enumerate(chunk.actions[:ACTION_HORIZON]):
+            yield i, np.asarray(action, np.float32)
+            world.step(action)
+            obs = world.observe(images=False, privileged_atoms=atoms)
+            if world.success():
+                return
+
+
+def _closed_loop(world, expert, reasoning: Reasoning, obs) -> tuple[np.ndarray, int]:
+    """The expert's next PREDICT_HORIZON executed actions from the world's state (restored after);
+    (actions padded with the last one, how many are real)."""
     snap = world.snapshot()
     taken: list[np.ndarray] = []
-    plan = first
     try:
-        while True:
-            for action in plan[:ACTION_HORIZON]:
-                world.step(action)
-                taken.append(action)
-                if len(taken) == PREDICT_HORIZON or world.success():
-                    break
-            if len(taken) == PREDICT_HORIZON or world.success():
+        for _, action in expert_steps(world, expert, obs, reasoning, expert.privileged_atoms()):
+            taken.append(action)
+            if len(taken) == PREDICT_HORIZON:
                 break
-            obs = world.observe(images=False, privileged_atoms=atoms)
-            chunk = expert.act([obs], reasoning)[0]
-            if chunk.think:  # this sub-plan is done: on to the next, as a demonstration would
-                reasoning = expert.reason(obs)
-                if reasoning.finished:
-                    break
-                expert.begin(1)
-                chunk = expert.act([obs], reasoning)[0]
-                if chunk.think:
-                    break
-            plan = np.asarray(chunk.actions, np.float32)
     except SealError:
         pass  # the teacher has no plan from there: the label is what it did up to that point
     finally:
@@ -480,24 +489,14 @@ def teacher_recovers(world, snap, budget: int) -> dict:
     expert.reset(world.instruction, 0)
     obs = world.observe(images=False, privileged_atoms=atoms)
     reasoning = expert.reason(obs)
-    expert.begin(1)
-    now_at_start = reasoning.now
     end = world.steps + budget
     try:
-        while not world.success() and world.steps < end and not reasoning.finished:
-            chunk = expert.act([obs], reasoning)[0]
-            if chunk.think:
-                reasoning = expert.reason(obs)
-                expert.begin(1)
-                continue
-            for action in chunk.actions[:ACTION_HORIZON]:
-                world.step(action)
-                obs = world.observe(images=False, privileged_atoms=atoms)
-                if world.success() or world.steps >= end:
-                    break
+        for _ in expert_steps(world, expert, obs, reasoning, atoms):
+            if world.steps >= end:
+                break
     except SealError as exc:
-        return {"recovered": False, "steps": world.steps, "now": now_at_start, "budget": budget, "error": str(exc)}
-    return {"recovered": bool(world.success()), "steps": world.steps, "now": now_at_start, "budget": budget}
+        return {"recovered": False, "steps": world.steps, "now": reasoning.now, "budget": budget, "error": str(exc)}
+    return {"recovered": bool(world.success()), "steps": world.steps, "now": reasoning.now, "budget": budget}
 
 
 def on_policy_figures(rows: list[dict], final_done=()) -> dict:

@@ -26,26 +26,19 @@ from seal.sim.suites import get_task, parse_task_ids
 
 def _expert_episode(world, expert, seed: int):
     """The clean expert alone, demonstration-style; (snapshots at chunk boundaries, executed actions)."""
+    from seal.dagger import expert_steps
+
     world.reset_sampled(seed)
     expert.reset(world.instruction, seed)
     atoms = expert.privileged_atoms()
     obs = world.observe(images=False, privileged_atoms=atoms)
-    reasoning = expert.reason(obs)
-    expert.begin(1)
     snaps, actions = [], []
-    while not world.success() and world.steps < world.task.max_steps and not reasoning.finished:
-        chunk = expert.act([obs], reasoning)[0]
-        if chunk.think:
-            reasoning = expert.reason(obs)
-            expert.begin(1)
-            continue
-        snaps.append((len(actions), world.snapshot()))
-        for action in chunk.actions[:ACTION_HORIZON]:
-            world.step(action)
-            actions.append(np.asarray(action, np.float32))
-            obs = world.observe(images=False, privileged_atoms=atoms)
-            if world.success() or world.steps >= world.task.max_steps:
-                break
+    for i, action in expert_steps(world, expert, obs, expert.reason(obs), atoms):
+        if world.steps >= world.task.max_steps:
+            break
+        if i == 0:
+            snaps.append((len(actions), world.snapshot()))
+        actions.append(action)
     return snaps, np.asarray(actions), bool(world.success())
 
 
