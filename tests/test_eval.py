@@ -9,6 +9,7 @@ import sqlite3
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -136,6 +137,10 @@ def test_tiny_run_end_to_end_and_resume(tmp_path):
     assert all(v is None or 0 <= v <= 1 for v in summary.alignment.values())
     again = run_eval(str(db), methods, ["libero_10"], [0, 1], 2, options=options)
     assert (again.already_done, again.ran) == (8, 0)
+    # the capped trials are not the full-length ones: a run at the suite's limit must not count them as done
+    for cap, said in ((None, "the suite's step limit"), (SHORT + 1, f"--max-steps {SHORT + 1}")):
+        with pytest.raises(InvalidInput, match=f"run with --max-steps {SHORT}; this run asks for {said}"):
+            run_eval(str(db), methods, ["libero_10"], [0, 1], 2, options=replace(options, max_steps=cap))
 
 
 def _events(row):

@@ -60,6 +60,7 @@ def run_eval(db: str, methods: list[MethodSpec], suites: list[str], tasks: list[
         raise InvalidInput(f"--max-steps must be an integer >= 1 (or left out: the suite's limit), "
                            f"got {options.max_steps!r}")
     with ResultStore(db) as store:
+        store.check_step_cap(options.max_steps)
         every, todo = _todo(store, every, retry_errors)
         for m in methods:
             store.register_method(m.config_hash, m.label, m.canonical())
