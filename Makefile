@@ -29,8 +29,10 @@ install: $(BIN)/seal install-chromium
 run: install
 	$(BIN)/seal run --suite libero_10 --task 5 --method seal --k 10 --policy vla --verifier oracle --out runs/demo
 
+# Two test processes, one test file each at a time (`--dist loadfile`: a file's module fixtures, such
+# as a simulator pool, are built once). ~13 min on the 2-core machine under load (docs/performance.md).
 test: install
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile --durations=15
 
 # The long tests kept out of `make test` (marked slow): full expert episodes (microwave, books,
 # ketchup, every composition task) and the checks of every task of every derived suite.

@@ -242,11 +242,13 @@ def test_ctrl_c_during_collect_prints_what_was_kept_and_no_worker_traceback(tmp_
     out = tmp_path / "cases"
     seal = Path(sys.executable).with_name("seal")
     cmd = [str(seal)] if seal.is_file() else [sys.executable, "-m", "seal.cli"]
-    # far more cases than it can collect before the interrupt: on a loaded machine a target of 50 was
-    # reached before the first shard showed up, and the run ended on its own instead of by Ctrl-C
+    # A target it cannot reach before the interrupt, so only Ctrl-C can end it. SIG_DFL in the child:
+    # a test run started as a background job (or a pytest-xdist worker) passes SIGINT on ignored,
+    # and Python then never turns it into KeyboardInterrupt (the run went on to its end).
     proc = subprocess.Popen([*cmd, "verify", "collect", "--tasks", "0", "--per-task", "2000", "--k", "2", "--workers",
                              "2", "--init-source", "official", "--max-steps", "60", "--out", str(out)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         deadline = time.monotonic() + 240
         while not glob.glob(str(out / "data" / "*.parquet")) and proc.poll() is None and time.monotonic() < deadline:
