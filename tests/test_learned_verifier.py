@@ -394,6 +394,9 @@ def test_several_collections_train_as_one_and_a_repeated_one_is_refused(tmp_path
                  "--batch-size", "8", "--image-size", "32", "--holdout-tasks", "libero_90/9"]) == 0
     manifest = json.loads((tmp_path / "run" / "manifest.json").read_text())
     assert manifest["data"] == f"{a},{b}" and manifest["split"]["heldout_tasks"] == 10
+    # the manifest names the policy whose states trained it (these synthetic cases: the scripted expert's)
+    assert manifest["case_policies"]["train_cases_by_policy"] == {"scripted": manifest["split"]["train"]}
+    assert [s["data"] for s in manifest["case_policies"]["sources"]] == [str(a), str(b)]
     assert manifest["command"].startswith("seal train verifier --data ") and "--holdout-tasks libero_90/9" in manifest["command"]
 
 

@@ -252,6 +252,9 @@ def collect(opts: CollectOptions, out: Path, *, progress: Callable | None = None
             # the pixels' render model (the policy's own for a learned VLA): a verifier trained on one sees the
             # other's images out of distribution. Not a setting: it follows from the policy.
             "render_mode": spec.render,
+            # which weights made the states (a learned policy's digest, as in method labels): a verifier
+            # trained on these cases names the policy version it saw (its manifest's `case_policies`)
+            "policy_ckpt_digest": spec.canonical().get("policy_ckpt"),
             "init_sources": {"official": "LIBERO's evaluation init states (episode e uses index e mod their count)",
                              "fresh-train": f"fresh states drawn with seeds task_seed + {FRESH_SEED_OFFSET['fresh-train']} + j",
                              "fresh-heldout": f"fresh states drawn with seeds task_seed + {FRESH_SEED_OFFSET['fresh-heldout']} + j"},

@@ -22,6 +22,7 @@ step), so continuing from a checkpoint gives the same weights as never stopping.
 
 from __future__ import annotations
 
+import collections
 import copy
 import hashlib
 import json
@@ -389,6 +390,20 @@ def _save_state(out: Path, obj: dict) -> None:
     tmp.replace(out / STATE)
 
 
+
+def case_policies(datas: list[Path], arrays, train_idx: np.ndarray) -> dict:
+    """Which policies' states the training cases come from (counts in the training split) and, per
+    case directory, the policy that made it and its checkpoint digest where a learned policy did.
+    Verifier and policy versions go together: when the VLA is re-shipped, this says whether the
+    verifier ever saw it."""
+    trained = collections.Counter(np.asarray(arrays.policy)[train_idx].tolist())
+    sources = []
+    for d in datas:
+        info = ds.read_info(d).get("collection", {})
+        sources.append({"data": str(d), "policy": info.get("policy") or info.get("settings", {}).get("policy"),
+                        "policy_ckpt_digest": info.get("policy_ckpt_digest") or info.get("vla_ckpt_digest")})
+    return {"train_cases_by_policy": dict(sorted(trained.items())), "sources": sources}
+
 def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig, *, progress=None, threads: int | None = 1,
                    command: str = "") -> dict:
     """Train (or continue training) into ``out``; returns the summary written to metrics.json.
@@ -432,8 +447,11 @@ def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig,
     if len(train_idx) < 2:
         raise InvalidInput(f"only {len(train_idx)} training case(s); collect more")
 
+    sources = case_policies(datas, arrays, train_idx)
+
     def summary(final: bool) -> dict:
         return {"step": step, "data": ",".join(map(str, datas)), "data_fingerprint": fingerprint,
+                "case_policies": sources,
                 "split": {k: int(len(v)) for k, v in parts.items()},
                 "holdout_tasks": list(cfg.holdout_tasks), "holdout_inits": cfg.holdout_inits,
                 "train": evaluate(judged, arrays, train_idx[:2000], vocab, max_words, threshold) if final else None,
@@ -443,7 +461,7 @@ def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig,
     def checkpoint(manifest: dict | None = None) -> None:
         config["training"] = {"step": step, "data_fingerprint": fingerprint, "config": cfg.identity()}
         save_checkpoint(out, judged, config, manifest or {"step": step, "data": ",".join(map(str, datas)),
-                                                          "data_fingerprint": fingerprint})
+                                                          "data_fingerprint": fingerprint, "case_policies": sources})
         _save_state(out, {"identity": json.dumps(cfg.identity()), "data": fingerprint, "step": step,
                           "optimizer": opt.state_dict()} | ({"raw": net.state_dict()} if cfg.ema else {}))
 
@@ -502,6 +520,7 @@ def manifest_of(result: dict, command: str = "") -> dict:
         return None if not m else {k: m[k] for k in ("n", "accuracy", "precision", "recall", "f1")}
 
     return {"step": result["step"], "data": result["data"], "data_fingerprint": result["data_fingerprint"],
+            "case_policies": result["case_policies"],
             "split": result["split"], "holdout_tasks": result["holdout_tasks"],
             "heldout_inits": headline(result["heldout_inits"]), "heldout_tasks": headline(result["heldout_tasks"]),
             "command": command or "seal train verifier (see docs/verifier.md)"}
