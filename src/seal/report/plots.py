@@ -4,6 +4,7 @@ state and no display backend is ever touched, which matters in worker processes 
 from __future__ import annotations
 
 import math
+import textwrap
 from collections import defaultdict
 from pathlib import Path
 
@@ -153,9 +154,11 @@ def rounds_plot(rows: list[dict], path, *, title: str = "On-policy rounds: the r
                                    [100 * hi - s for s, (_, hi) in zip(success, cis)]],
                 marker="o", capsize=4, label="success alone (Wilson 95%)")
     for key, label, marker in (("onpolicy_subplan_accuracy", "on-policy sub-plan accuracy", "s"),
-                               ("onpolicy_alignment", "alignment (committed sub-plans achieved)", "^")):
+                               ("onpolicy_alignment", "alignment (committed sub-plans achieved)", "^"),
+                               ("rollout_subgoals", "goal atoms holding at the end", "D")):
         ax.plot(xs, [100 * (r.get(key) or 0.0) for r in rows], marker=marker, label=label)
-    ax.set_xticks(xs, [str(r["round"]) for r in rows])
+    # round names carry the variant ("1 (no instruction dropout)"): wrapped so neighbours do not overlap
+    ax.set_xticks(xs, [textwrap.fill(str(r["round"]), 14) for r in rows], fontsize=8)
     ax.set_xlabel("round")
     ax.set_ylabel("%")
     ax.set_ylim(0, 100)
