@@ -463,3 +463,31 @@ def test_a_reference_rollout_says_whether_this_machine_drives_the_checkpoint_ali
     assert other["max_abs_action_diff"] == pytest.approx(0.01, abs=1e-4)
     # the shipped checkpoints carry theirs
     assert len(json.loads((SHIPPED["reason"] / "manifest.json").read_text())["reference_rollout"]["actions"]) == 40
+
+
+def test_dagger_chunks_train_only_the_steps_the_teacher_labelled(tok):
+    """A DAgger frame's action target is the teacher's chunk, and only its first ``chunk_steps`` steps
+    count (one-shot labels of older collections: the executed prefix; closed-loop ones: all 16, fewer
+    where the episode would have ended). Demonstration frames keep their window up to the episode end."""
+    from seal.policies.base import ACTION_HORIZON, PREDICT_HORIZON
+    from seal.train.vla import Batcher, FrameCache, _Texts
+
+    n = 3
+    cache = FrameCache(agent=np.zeros((n, 32, 32, 3), np.uint8), wrist=np.zeros((n, 32, 32, 3), np.uint8),
+                       states=np.zeros((n, 8), np.float32), actions=np.ones((n, 7), np.float32), episodes=[0],
+                       starts=np.array([0]), lengths=np.array([n]), info={})
+    texts = _Texts()
+    text = Reasoning(PLANS, (), PLANS[0]).text()
+    reason = np.full(n, texts.text(text, PLANS[0]))
+    instruction = np.full(n, texts.instruction(INSTRUCTION))
+    chunks = np.arange(n * PREDICT_HORIZON * 7, dtype=np.float32).reshape(n, PREDICT_HORIZON, 7)
+    steps = np.array([ACTION_HORIZON, PREDICT_HORIZON, 11])
+    dagger = texts.labels(reason, instruction, [], [], chunks=chunks, usable=np.ones(n, bool), chunk_steps=steps)
+    frames = np.arange(n)
+    batch = Batcher(cache, dagger, tok, tiny(tok)).batch(frames, reason, np.zeros(n, bool))
+    np.testing.assert_array_equal(batch["actions"].numpy(), chunks)
+    assert batch["action_valid"].sum(1).tolist() == steps.tolist()
+    assert batch["action_valid"][:, 0].all() and not batch["action_valid"][0, ACTION_HORIZON:].any()
+    demos = texts.labels(reason, instruction, [], [])
+    batch = Batcher(cache, demos, tok, tiny(tok)).batch(frames, reason, np.zeros(n, bool))
+    assert batch["action_valid"].sum(1).tolist() == [3, 2, 1]  # the window stops at the episode's end
