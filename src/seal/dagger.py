@@ -120,7 +120,7 @@ def teacher_label(expert, obs, world=None) -> TeacherLabel:
     actions = np.asarray(chunk.actions, np.float32)
     steps = PREDICT_HORIZON
     if world is not None:  # its first chunk is the one above: the expert plans the same way twice
-        actions, steps = _closed_loop(world, expert, reasoning, obs)
+        actions, steps = _closed_loop(world, expert, reasoning, obs, actions)
         expert.reason(obs)  # the expert's own state back where the label was asked
     if not np.isfinite(actions).all():
         return TeacherLabel(reasoning, empty, False, "non-finite chunk")
@@ -153,9 +153,10 @@ def expert_steps(world, expert, obs, reasoning: Reasoning, atoms):
                 return
 
 
-def _closed_loop(world, expert, reasoning: Reasoning, obs) -> tuple[np.ndarray, int]:
+def _closed_loop(world, expert, reasoning: Reasoning, obs, one_shot: np.ndarray) -> tuple[np.ndarray, int]:
     """The expert's next PREDICT_HORIZON executed actions from the world's state (restored after);
-    (actions padded with the last one, how many are real)."""
+    (actions padded with the last one, how many are real). Should the expert not act at all on the
+    second asking, the one-shot chunk's executed prefix stands in."""
     snap = world.snapshot()
     taken: list[np.ndarray] = []
     try:
@@ -167,6 +168,8 @@ def _closed_loop(world, expert, reasoning: Reasoning, obs) -> tuple[np.ndarray, 
         pass  # the teacher has no plan from there: the label is what it did up to that point
     finally:
         world.restore(snap)
+    if not taken:
+        return one_shot, ACTION_HORIZON
     out = np.empty((PREDICT_HORIZON, 7), np.float32)
     out[:len(taken)] = taken
     out[len(taken):] = taken[-1]
