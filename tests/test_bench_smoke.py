@@ -120,6 +120,14 @@ def test_bench_eval(capsys):
     assert 0.05 < out["ray_vs_local"] < 20  # a ratio of two runs of the same work
 
 
+def test_bench_eval_without_ray_compares_the_fast_step_on_the_same_episodes(capsys):
+    out = _bench(capsys, "eval", "--tasks", "5", "--trials", "1", "--k", "2", "--max-steps", "10", "--stock-step",
+                 "--no-ray")
+    assert out["policy"] == "scripted" and "ray_vs_local" not in out
+    _positive(out, "trials_per_hour_seal", "trials_per_hour_seal_stock_step", "fast_step_trials_per_hour_ratio")
+    assert out["stock_step_same_episodes"] is True  # bit-identical steps: the same trial, step for step
+
+
 def test_bench_trials_below_one_is_refused(capsys):
     with pytest.raises(SystemExit) as exit_:  # refused while the command line is parsed, before any work
         main(["bench", "eval", "--trials", "0"])

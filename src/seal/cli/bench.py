@@ -29,7 +29,7 @@ def add(sub) -> None:
     bench.add_argument("--policy", default=None,
                        help="runtime: scripted (state only), pixels (the expert reading both cameras every chunk, "
                             "a VLA's rendering without its network) or vla[:PATH]; steer/verifier-sweep: the policy "
-                            "(default scripted)")
+                            "(default scripted); eval: the policy both methods run (default scripted, misaligned)")
     bench.add_argument("--image-size", type=COUNT, default=None, help="runtime: camera px for pixel policies (64); render: the size measured (64)")
     bench.add_argument("--render", default=None, choices=["stock", "fast"],
                        help="runtime: render model (default: fast for pixel policies)")
@@ -55,6 +55,10 @@ def add(sub) -> None:
     bench.add_argument("--max-steps", type=COUNT, default=None,
                        help="steer/runtime/eval: control steps per episode (default: the suite's limit)")
     bench.add_argument("--no-misaligned", action="store_true", help="expert: skip the misaligned setting")
+    bench.add_argument("--stock-step", action="store_true",
+                       help="eval: run the SEAL trials again on robosuite's own control step and report the fast "
+                            "step's trials/hour ratio (same episodes, one run)")
+    bench.add_argument("--no-ray", action="store_true", help="eval: skip the Ray-versus-local comparison")
     bench.add_argument("--first-init", type=INDEX, default=0,
                        help="expert: first official init state (trials run first-init .. first-init+trials-1)")
     bench.add_argument("--log", default=None,

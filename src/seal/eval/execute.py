@@ -33,6 +33,9 @@ class RunOptions:
     pool_workers: int = 1  # simulator processes per trial worker
     max_steps: int | None = None  # cap (tests); None = the suite's limit
     pool_k: int = 1  # slots per env pool: the largest K of the run, so one pool serves every method
+    # robosuite's own control step instead of the bit-identical fast one (`seal.sim.fast_step`): the
+    # same results, slower; for measuring what the fast step buys (`seal bench eval --stock-step`)
+    stock_step: bool = False
 
 
 def trial_dir(out_dir: str | Path, spec: TrialSpec) -> Path:
@@ -98,7 +101,7 @@ class TrialRunner:
             task = get_task(spec.suite, spec.task)
             k = max(k, self.options.pool_k)
             self._pool = EnvPool(task, k=k, workers=min(self.options.pool_workers, k), render_mode=m.render,
-                                 physics=m.physics())
+                                 physics=m.physics(), fast_step=not self.options.stock_step)
             self._pool_key = key
         return self._pool
 
