@@ -20,6 +20,7 @@ import time
 import numpy as np
 
 from seal.benchmarks.common import trials_of
+from seal.errors import InvalidInput
 from seal.policies.base import ACTION_HORIZON, PREDICT_HORIZON
 from seal.sim.suites import get_task, parse_task_ids
 
@@ -60,7 +61,8 @@ def run(args) -> dict:
     ids = parse_task_ids(suite, args.tasks or "0,2,5")
     n = trials_of(args, "labels")
     one_shot, closed, grip_one, grip_closed = [], [], [], []
-    episodes, solved, boundaries, label_s, closed_s = 0, 0, 0, 0.0, 0.0
+    episodes, solved, boundaries = 0, 0, 0
+    spent = {"one_shot": 0.0, "closed_loop": 0.0}  # seconds labelling, each way
     all_executed = []  # the scale the errors compare with: the executed actions' own variance
     t0 = time.perf_counter()
     for task_id in ids:
@@ -75,18 +77,15 @@ def run(args) -> dict:
                     if t + PREDICT_HORIZON > len(executed):
                         continue  # the episode ended inside this window: nothing to compare the tail with
                     window = executed[t:t + PREDICT_HORIZON]
-                    for world_arg, err, grip in ((None, one_shot, grip_one), (world, closed, grip_closed)):
+                    for way, world_arg, err, grip in (("one_shot", None, one_shot, grip_one),
+                                                      ("closed_loop", world, closed, grip_closed)):
                         world.restore(snap)
                         teacher = ScriptedExpert.for_world(world)  # nothing carried over from the episode
                         teacher.reset(world.instruction, 0)
                         obs = world.observe(images=False, privileged_atoms=teacher.privileged_atoms())
                         start = time.perf_counter()
                         label = teacher_label(teacher, obs, world_arg)
-                        spent = time.perf_counter() - start
-                        if world_arg is None:
-                            label_s += spent
-                        else:
-                            closed_s += spent
+                        spent[way] += time.perf_counter() - start
                         if not label.valid:
                             continue
                         err.append(((label.chunk[:, :6] - window[:, :6]) ** 2).mean(1))
@@ -95,11 +94,10 @@ def run(args) -> dict:
         finally:
             world.close()
     if not closed:
-        raise RuntimeError("no chunk boundary with a full window to compare: run more --trials")
+        raise InvalidInput("no chunk boundary with a full 16-step window to compare: run more --trials")
     return {"benchmark": "labels", "suite": suite, "tasks": ids, "episodes": episodes, "expert_solved": solved,
             "boundaries": boundaries, "one_shot": _summary(one_shot, grip_one),
             "closed_loop": _summary(closed, grip_closed),
             "executed_action_var_arm": round(float(np.concatenate(all_executed)[:, :6].var(0).mean()), 5),
-            "ms_per_label": {"one_shot": round(1000 * label_s / boundaries, 2),
-                             "closed_loop": round(1000 * closed_s / boundaries, 2)},
+            "ms_per_label": {way: round(1000 * s / boundaries, 2) for way, s in spent.items()},
             "wall_s": round(time.perf_counter() - t0, 1)}

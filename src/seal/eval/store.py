@@ -231,15 +231,15 @@ class ResultStore:
     def check_step_cap(self, max_steps: int | None) -> None:
         """One database, one episode cap. The cap is not part of a method's identity, so a trial
         run with ``--max-steps 10`` would otherwise count as done for a run at the suite's limit
-        (and its row would read as a real result). The first run that stores trials sets it; a
+        (and its row would read as a real result). The first run on a database sets it; a
         database from before this check holds full-length trials."""
         wanted = "suite" if max_steps is None else str(int(max_steps))
         row = self._db.execute("SELECT value FROM seal_meta WHERE key = 'max_steps'").fetchone()
         if row is None:
             has_trials = self._db.execute("SELECT 1 FROM trials LIMIT 1").fetchone() is not None
-            with self._tx():
-                self._db.execute("INSERT INTO seal_meta VALUES ('max_steps', ?)", ("suite" if has_trials else wanted,))
             row = ("suite" if has_trials else wanted,)
+            with self._tx():
+                self._db.execute("INSERT INTO seal_meta VALUES ('max_steps', ?)", row)
         if row[0] != wanted:
             def say(cap: str) -> str:
                 return "the suite's step limit" if cap == "suite" else f"--max-steps {cap}"
