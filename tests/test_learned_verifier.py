@@ -465,3 +465,29 @@ def test_prepare_images_is_an_area_average_of_the_224px_view():
 
     cached = _downsample([ds.encode_png(im) for im in images], 96)
     assert torch.equal(prepare_images(images, 96), torch.from_numpy(cached).float() / 255)
+
+
+def test_fine_tuning_starts_from_the_checkpoint_keeps_its_vocabulary_and_resumes_exactly(run, data, tmp_path):
+    base, _ = run
+    cfg = VerifierTrainConfig(steps=4, batch_size=8, image_size=32, holdout_tasks=("libero_10/1",), holdout_inits=0.25)
+    # zero steps: the fine-tune's checkpoint is its starting point, to the bit
+    train_verifier(data, tmp_path / "zero", VerifierTrainConfig(**{**cfg.__dict__, "steps": 0}), init_from=base)
+    (a, config_a, vocab_a), (b, config_b, _) = load_checkpoint(base), load_checkpoint(tmp_path / "zero")
+    assert config_b["vocab"] == config_a["vocab"]
+    assert all(torch.equal(x, y) for x, y in zip(a.state_dict().values(), b.state_dict().values()))
+    summary = train_verifier(data, tmp_path / "ft", cfg, init_from=base)
+    manifest = json.loads((tmp_path / "ft" / "manifest.json").read_text())
+    assert manifest["case_policies"]["init_from"]["path"] == str(base)
+    assert manifest["case_policies"]["init_from"]["unknown_words"] == []  # same cases, same words
+    assert summary["heldout_tasks"]["accuracy"] >= 0.95  # 4 small steps keep what the base learned
+    # resuming the fine-tune continues it; resuming it from scratch (or another start) is refused
+    train_verifier(data, tmp_path / "half", VerifierTrainConfig(**{**cfg.__dict__, "steps": 2}), init_from=base)
+    train_verifier(data, tmp_path / "half", cfg, init_from=base)
+    c, _, _ = load_checkpoint(tmp_path / "ft")
+    d, _, _ = load_checkpoint(tmp_path / "half")
+    assert all(torch.equal(x, y) for x, y in zip(c.state_dict().values(), d.state_dict().values()))
+    with pytest.raises(InvalidInput, match="started from"):
+        train_verifier(data, tmp_path / "half", cfg)
+    with pytest.raises(InvalidInput, match="--image-size 32"):
+        train_verifier(data, tmp_path / "big", VerifierTrainConfig(**{**cfg.__dict__, "image_size": 48}), init_from=base)
+    assert main(["train", "value", "--out", str(tmp_path / "v"), "--init-from", str(base)]) == 2

@@ -28,6 +28,10 @@ def add(sub) -> None:
                        help="fraction of episodes held out for the check (value 0.2, vla 0.1)")
     train.add_argument("--seed", type=int, default=None)
     train.add_argument("--threads", type=COUNT, default=None, help="vla/verifier: torch threads (default 1)")
+    train.add_argument("--init-from", default=None, metavar="CKPT",
+                       help="vla/verifier: fine-tune this checkpoint instead of training from scratch. vla: reason, "
+                            "twin or a directory (its shape, tokenizer and normalization; --model-config is ignored); "
+                            "verifier: learned (the shipped one) or a run directory (its vocabulary and input size)")
     value = train.add_argument_group("value")
     value.add_argument("--goals", default="both", choices=["task", "subplan", "both"],
                        help="goal texts to condition on: the task instruction, each sub-plan, or both")
@@ -39,9 +43,6 @@ def add(sub) -> None:
                           "demonstrations first, then `seal demos dagger` rounds (OUT/annotations)")
     vla.add_argument("--mix", default=None, help="comma-separated share of each batch per --annotations directory "
                                                  "(default: in proportion to their frames)")
-    vla.add_argument("--init-from", default=None, metavar="CKPT",
-                     help="fine-tune this VLA checkpoint (reason, twin, or a directory): its shape, tokenizer and "
-                          "normalization; --model-config is ignored")
     vla.add_argument("--instruction-dropout", type=real_in(0.0, 1.0, high_open=True), default=None,
                      help="share of samples trained with the instruction left out, so actions read the sub-plan "
                           "(reasoning model; default 0)")
@@ -115,6 +116,8 @@ def _cmd_train(args) -> int:
         return _cmd_train_verifier(args)
     if args.what == "vla":
         return _cmd_train_vla(args)
+    if args.init_from:
+        raise InvalidInput("--init-from fine-tunes a vla or verifier checkpoint; seal train value trains from scratch")
 
     from seal.train.pipeline import train_value_on_dataset
     from seal.train.vgps import IQLConfig
@@ -130,6 +133,15 @@ def _cmd_train(args) -> int:
                                          progress=progress)
     print(json.dumps({k: summary[k] for k in ("train_transitions", "last", "heldout", "train_fit") if k in summary}))
     return 0
+
+
+def _verifier_init(name: str | None):
+    """``learned`` names the shipped checkpoint, as in ``--verifier learned``."""
+    if name == "learned":
+        from seal.verify.learned import DEFAULT_CHECKPOINT
+
+        return DEFAULT_CHECKPOINT
+    return name
 
 
 def _cmd_train_verifier(args) -> int:
@@ -163,7 +175,7 @@ def _cmd_train_verifier(args) -> int:
     with _stage_bars({"load": "decoding images", "train": "training"}, lambda info: info or "") as progress:
         summary = train_verifier([Path(d) for d in args.data.split(",") if d], Path(args.out), cfg, progress=progress,
                                  threads=1 if args.threads is None else args.threads,
-                                 command="seal " + " ".join(args.argv))
+                                 command="seal " + " ".join(args.argv), init_from=_verifier_init(args.init_from))
     keys = ("step", "split", "heldout_inits", "heldout_tasks")
     print(json.dumps({k: ({m: v for m, v in summary[k].items() if m != "per_kind"} if isinstance(summary[k], dict)
                           and "per_kind" in summary[k] else summary[k]) for k in keys}))

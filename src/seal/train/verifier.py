@@ -36,8 +36,8 @@ import numpy as np
 from seal.errors import InvalidInput
 from seal.verify import dataset as ds
 from seal.verify.dataset import binary_metrics, init_key_of
-from seal.verify.learned import (WordVocab, build_net, context_of, default_config, load_checkpoint, prepare_images,
-                                 save_checkpoint)
+from seal.verify.learned import (CHECKPOINT, WordVocab, build_net, checkpoint_dir, context_of, default_config,
+                                 load_checkpoint, prepare_images, save_checkpoint, words)
 
 try:
     import torch
@@ -404,11 +404,24 @@ def case_policies(datas: list[Path], arrays, train_idx: np.ndarray) -> dict:
                         "policy_ckpt_digest": info.get("policy_ckpt_digest") or info.get("vla_ckpt_digest")})
     return {"train_cases_by_policy": dict(sorted(trained.items())), "sources": sources}
 
+def _init_checkpoint(init_from: str | Path, cfg: VerifierTrainConfig):
+    """(net, config, vocab, provenance) of the checkpoint a fine-tune starts from."""
+    path = checkpoint_dir(init_from)
+    net, config, vocab = load_checkpoint(path)
+    if int(config["image_size"]) != cfg.image_size:
+        raise InvalidInput(f"--init-from {init_from} reads {config['image_size']}-px images; this run was asked for "
+                           f"--image-size {cfg.image_size}: pass --image-size {config['image_size']} or train from scratch")
+    return net, config, vocab, {"path": str(path), "digest": CHECKPOINT.digest(path)}
+
+
 def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig, *, progress=None, threads: int | None = 1,
-                   command: str = "") -> dict:
+                   command: str = "", init_from: str | Path | None = None) -> dict:
     """Train (or continue training) into ``out``; returns the summary written to metrics.json.
 
-    ``progress(stage, done, total, info)``: stage "load" then "train"."""
+    ``progress(stage, done, total, info)``: stage "load" then "train".
+    ``init_from``: a verifier checkpoint to fine-tune (e.g. the shipped one on the steered policy's own
+    cases): its network, vocabulary and threshold are kept, so words its vocabulary lacks read as
+    unknown (counted in the summary's ``init_from.unknown_words``)."""
     # (the settings were checked when cfg was made: bad ones fail before the images are decoded)
     if threads:
         torch.set_num_threads(threads)
@@ -420,18 +433,26 @@ def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig,
     out.mkdir(parents=True, exist_ok=True)  # not before: data that cannot be used leaves no empty run directory
     train_idx = parts["train"]
     state_path = out / STATE
+    init = _init_checkpoint(init_from, cfg) if init_from else None
     if state_path.is_file():
         state = torch.load(state_path, weights_only=True)
         saved = json.loads(state["identity"])
         if saved != cfg.identity() or state["data"] != fingerprint:
             raise InvalidInput(f"{out} was trained with other settings or data (saved {saved}, data {state['data']}; "
                                f"now {cfg.identity()}, data {fingerprint}); use another --out")
+        if state.get("init_digest") != (init[3]["digest"] if init else None):
+            raise InvalidInput(f"{out} was started from {state.get('init_digest') or 'scratch'}, not from "
+                               f"{init[3]['digest'] if init else 'scratch'}; use another --out")
         net, config, vocab = load_checkpoint(out)
         step = int(state["step"])
         average = None
         if cfg.ema:  # the checkpoint is the average; the raw weights are in the state
             average, net = net, build_net(config)
             net.load_state_dict(state["raw"])
+    elif init:
+        net, config, vocab = init[:3]
+        step, state = 0, None
+        average = copy.deepcopy(net) if cfg.ema else None
     else:
         vocab = WordVocab.build([arrays.subplan[i] for i in train_idx] + [arrays.context[i] for i in train_idx])
         config = default_config(vocab, cfg.image_size)
@@ -448,6 +469,10 @@ def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig,
         raise InvalidInput(f"only {len(train_idx)} training case(s); collect more")
 
     sources = case_policies(datas, arrays, train_idx)
+    if init:
+        texts = {arrays.subplan[i] for i in train_idx} | {arrays.context[i] for i in train_idx}
+        unknown = sorted({w for t in texts for w in words(t) if w not in vocab.index})
+        sources["init_from"] = init[3] | {"unknown_words": unknown}
 
     def summary(final: bool) -> dict:
         return {"step": step, "data": ",".join(map(str, datas)), "data_fingerprint": fingerprint,
@@ -463,7 +488,7 @@ def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig,
         save_checkpoint(out, judged, config, manifest or {"step": step, "data": ",".join(map(str, datas)),
                                                           "data_fingerprint": fingerprint, "case_policies": sources})
         _save_state(out, {"identity": json.dumps(cfg.identity()), "data": fingerprint, "step": step,
-                          "optimizer": opt.state_dict()} | ({"raw": net.state_dict()} if cfg.ema else {}))
+                          "optimizer": opt.state_dict(), "init_digest": init[3]["digest"] if init else None} | ({"raw": net.state_dict()} if cfg.ema else {}))
 
     net.train()
     last_save = time.monotonic()
