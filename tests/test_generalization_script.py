@@ -54,6 +54,14 @@ def test_plan_counts_trials_and_hours(tmp_path):
     # SEAL costs more per trial than the policy alone
     l10 = plan["suites"]["libero_10"]["methods"]
     assert l10["vla_seal"]["s_per_trial"] > l10["vla"]["s_per_trial"]
+    # the LIBERO-100 training column: its evaluation is the three VLA methods' share of this plan
+    column = plan["libero_100_column"]
+    vla_hours = sum(e["methods"][m]["cpu_hours"] for e in plan["suites"].values()
+                    for m in ("vla", "vla_seal", "vla_seal_learned"))
+    assert abs(column["eval_cpu_hours"] - vla_hours) < 0.1
+    assert column["demos_to_record"] > 4000 and column["train_steps"] > 6000
+    assert abs(column["total_cpu_hours"] - column["record_cpu_hours"] - column["train_cpu_hours"]
+               - column["eval_cpu_hours"]) < 0.2
 
 
 def test_dry_run_matches_plan_and_skips_vgps(tmp_path):
