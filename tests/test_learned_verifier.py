@@ -491,3 +491,29 @@ def test_fine_tuning_starts_from_the_checkpoint_keeps_its_vocabulary_and_resumes
     with pytest.raises(InvalidInput, match="--image-size 32"):
         train_verifier(data, tmp_path / "big", VerifierTrainConfig(**{**cfg.__dict__, "image_size": 48}), init_from=base)
     assert main(["train", "value", "--out", str(tmp_path / "v"), "--init-from", str(base)]) == 2
+
+
+def test_averaging_two_seeds_gives_one_checkpoint_of_the_mean_weights(run, data, tmp_path, capsys):
+    base, _ = run
+    cfg = VerifierTrainConfig(steps=3, batch_size=8, image_size=32, holdout_tasks=("libero_10/1",), holdout_inits=0.25)
+    for seed in (0, 1):
+        train_verifier(data, tmp_path / f"s{seed}", VerifierTrainConfig(**{**cfg.__dict__, "train_seed": seed}),
+                       init_from=base)
+    assert main(["train", "verifier", "--average", f"{tmp_path / 's0'},{tmp_path / 's1'}",
+                 "--out", str(tmp_path / "soup")]) == 0
+    (a, _, _), (b, _, _), (m, config, _) = (load_checkpoint(tmp_path / n) for n in ("s0", "s1", "soup"))
+    for name, x in m.state_dict().items():
+        y, z = a.state_dict()[name], b.state_dict()[name]
+        want = (y + z) / 2 if y.is_floating_point() else y
+        assert torch.allclose(x, want, atol=1e-7), name
+    manifest = json.loads((tmp_path / "soup" / "manifest.json").read_text())
+    assert [i["path"] for i in manifest["average_of"]] == [str(tmp_path / "s0"), str(tmp_path / "s1")]
+    assert manifest["case_policies"]["init_from"]["path"] == str(base)
+    assert LearnedVerifier(tmp_path / "soup").verify_batch(_requests(data, 3))  # it loads and judges
+    # runs of another architecture are refused, as is a single run
+    train_verifier(data, tmp_path / "small", VerifierTrainConfig(**{**cfg.__dict__, "image_size": 24, "steps": 1}))
+    capsys.readouterr()
+    assert main(["train", "verifier", "--average", f"{tmp_path / 's0'},{tmp_path / 'small'}",
+                 "--out", str(tmp_path / "x")]) == 2
+    assert "in 'image_size'" in capsys.readouterr().err
+    assert main(["train", "verifier", "--average", str(tmp_path / "s0"), "--out", str(tmp_path / "one")]) == 2

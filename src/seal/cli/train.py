@@ -82,6 +82,9 @@ def add(sub) -> None:
     ver.add_argument("--score", default=None, help="instead of training: score these checkpoint directories "
                      "(comma-separated) on the held-out splits this command's --data, --holdout-tasks, --holdout-inits "
                      "and --seed make, per split and per policy that made the cases (one JSON; --out caches images)")
+    ver.add_argument("--average", default=None, metavar="RUN1,RUN2",
+                     help="instead of training: write to --out one checkpoint whose weights are the mean of these "
+                          "runs' (fine-tunes of one checkpoint on the same data, different --train-seed)")
     ver.add_argument("--export-heldout", action="store_true",
                      help="instead of training: write the held-out cases this command's --data, --holdout-tasks, "
                      "--holdout-inits and --seed make as collections OUT/heldout_inits and OUT/heldout_tasks, for "
@@ -148,6 +151,12 @@ def _cmd_train_verifier(args) -> int:
 
     from seal.train.verifier import VerifierTrainConfig, train_verifier
 
+    if args.average:
+        from seal.train.verifier import average_runs
+
+        runs = [Path(r) for r in args.average.split(",") if r.strip()]
+        print(json.dumps(average_runs(runs, Path(args.out), command="seal " + " ".join(args.argv))))
+        return 0
     if not args.data:
         raise InvalidInput("seal train verifier needs --data (one or more `seal verify collect` directories, "
                            "comma-separated)")

@@ -36,7 +36,7 @@ import numpy as np
 from seal.errors import InvalidInput
 from seal.verify import dataset as ds
 from seal.verify.dataset import binary_metrics, init_key_of
-from seal.verify.learned import (CHECKPOINT, WordVocab, build_net, checkpoint_dir, context_of, default_config,
+from seal.verify.learned import (ARCH_KEYS, CHECKPOINT, WordVocab, build_net, checkpoint_dir, context_of, default_config,
                                  load_checkpoint, prepare_images, save_checkpoint, words)
 
 try:
@@ -534,6 +534,47 @@ def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig,
     (out / "metrics.json").write_text(json.dumps(result, indent=1))
     plot_loss(out)
     return result
+
+
+def average_runs(runs: list[Path], out: Path, command: str = "") -> dict:
+    """One checkpoint whose weights are the mean of ``runs``' (a uniform "model soup"): runs that
+    fine-tuned one checkpoint on the same data with different training seeds share a basin, so their
+    average is a network of the same shape and cost that is usually at least as good as each, and
+    steadier than any one seed. Runs that do not share the architecture, vocabulary and threshold are
+    refused. The manifest names every ingredient (path and digest) and carries the first one's data
+    provenance (``case_policies``), which the ingredients are checked to share."""
+    from seal.checkpoint import read_manifest
+    from seal.verify.learned import KIND
+
+    if len(runs) < 2:
+        raise InvalidInput(f"averaging needs at least two runs, got {len(runs)}")
+    loaded = [load_checkpoint(r) for r in runs]
+    first_config = loaded[0][1]
+    for run, (_, config, _) in zip(runs[1:], loaded[1:]):
+        for key in (*ARCH_KEYS, "threshold"):
+            if config.get(key) != first_config.get(key):
+                raise InvalidInput(f"{run} differs from {runs[0]} in {key!r}: only runs of one architecture, "
+                                   f"vocabulary and threshold (fine-tunes of one checkpoint) can be averaged")
+    manifests = [read_manifest(checkpoint_dir(r), kind=KIND) for r in runs]
+    fingerprints = {m.get("data_fingerprint") for m in manifests}
+    if len(fingerprints) > 1:
+        raise InvalidInput(f"the runs were trained on different data ({sorted(map(str, fingerprints))}); average "
+                           f"runs of one recipe that differ only in their training seed")
+    net = loaded[0][0]
+    states = [n.state_dict() for n, _, _ in loaded]
+    with torch.no_grad():
+        for name, tensor in net.state_dict().items():
+            if tensor.is_floating_point():
+                tensor.copy_(torch.stack([s[name] for s in states]).mean(0))
+    ingredients = [{"path": str(checkpoint_dir(r)), "digest": CHECKPOINT.digest(checkpoint_dir(r)),
+                    "heldout_inits": m.get("heldout_inits")} for r, m in zip(runs, manifests)]
+    config = {k: v for k, v in first_config.items() if k != "training"} | {"training": {"average_of": ingredients}}
+    manifest = {"average_of": ingredients, "data": manifests[0].get("data"),
+                "data_fingerprint": manifests[0].get("data_fingerprint"),
+                "case_policies": manifests[0].get("case_policies"), "split": manifests[0].get("split"),
+                "holdout_tasks": manifests[0].get("holdout_tasks"), "command": command}
+    save_checkpoint(Path(out), net, config, manifest)
+    return {"out": str(Path(out).resolve()), "average_of": ingredients}
 
 
 def manifest_of(result: dict, command: str = "") -> dict:
