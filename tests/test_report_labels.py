@@ -213,3 +213,50 @@ def test_the_html_has_the_layout_and_the_names(layout_report):
     assert "lang_rephrase: ours beside the paper (Table VII layout)" in index
     assert f"{ORACLE} − reasoning VLA (pp)" in index and "paper π0+V-GPS" in index
     assert "seal[" not in index.split("Method configurations")[0]  # stored labels only in the configurations list
+
+
+# ---- lift across suites and a verifier's share of the oracle's lift ---------------------------------
+LIFT_WINS = {  # (suite, task) -> method -> successful trials of 4
+    ("libero_10", 0): {"reasoning VLA": [0], ORACLE: [0, 1, 2, 3], LEARNED: [0, 1, 2]},
+    ("libero_10", 1): {"reasoning VLA": [], ORACLE: [1, 2], LEARNED: [1]},
+    ("lang_rephrase", 0): {"reasoning VLA": [0], ORACLE: [0, 1], LEARNED: [0]},
+    ("lang_rephrase", 1): {"reasoning VLA": [], ORACLE: [], LEARNED: [3]},
+}
+
+
+def test_lift_by_suite_and_the_learned_verifiers_share_of_the_oracles(tmp_path):
+    from seal.report.lift import share_of_lift
+
+    configs = _standard()
+    db = tmp_path / "lift.db"
+    with ResultStore(db) as store:
+        for name in ("reasoning VLA", ORACLE, LEARNED):
+            store.register_method(_config_hash(configs[name]), configs[name]["method"], configs[name])
+        for (suite, task), wins in LIFT_WINS.items():
+            for name, won in wins.items():
+                for t in range(4):
+                    store.add(TrialRow(method=configs[name]["method"], config_hash=_config_hash(configs[name]),
+                                       suite=suite, task=task, trial=t, init_index=t, seed=t, success=t in won,
+                                       steps=50, wall_s=1.0))
+    report = write_report(db, tmp_path / "report", episodes=False)
+    by_name = {p.name: p for p in report.csv}
+    lifts = {(r["suite"], r["seal"]): r for r in csv.DictReader(by_name["lift_by_suite.csv"].read_text().splitlines())}
+    # Oracle: LIBERO-10 6/8 vs 1/8 -> +62.5 pp; Lang-Rephrase 2/8 vs 1/8 -> +12.5 pp, 0.2x of LIBERO-10's.
+    assert float(lifts["libero_10", ORACLE]["lift_pp"]) == 62.5 and lifts["libero_10", ORACLE]["ratio"] == ""
+    assert float(lifts["lang_rephrase", ORACLE]["lift_pp"]) == 12.5
+    assert float(lifts["lang_rephrase", ORACLE]["ratio"]) == 0.2
+    md = report.markdown.read_text()
+    row = next(r for r in _md_table(md, "SEAL's lift by suite") if r[:2] == ["lang_rephrase", ORACLE])
+    assert row[-2:] == ["0.20x", "smaller"]
+    # Learned verifier: LIBERO-10 4/8 -> (4 - 1) / (6 - 1) = 0.6 of the oracle's lift; Lang-Rephrase
+    # 2/8 -> (2 - 1) / (2 - 1) = 1.0; both suites pooled: (6 - 2) / (8 - 2).
+    shares = {r["suite"]: r for r in csv.DictReader(by_name["share_of_oracle_lift.csv"].read_text().splitlines())}
+    assert float(shares["libero_10"]["share"]) == 0.6 and float(shares["lang_rephrase"]["share"]) == 1.0
+    assert abs(float(shares["all"]["share"]) - 4 / 6) < 1e-3 and shares["all"]["trials"] == "16"
+    assert float(shares["libero_10"]["ci_low"]) <= 0.6 <= float(shares["libero_10"]["ci_high"])
+    assert "A verifier's share of the oracle's lift" in md
+    # the bootstrap: a verifier that always agrees with the oracle keeps all of its lift, exactly
+    x = [(o, o, b) for o, b in [(1, 0)] * 6 + [(1, 1)] * 2 + [(0, 0)] * 4]
+    assert share_of_lift(x) == (1.0, (1.0, 1.0))
+    # no lift from the oracle: no share
+    assert share_of_lift([(1, 0, 0), (0, 0, 0)])[0] is None

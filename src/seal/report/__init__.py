@@ -38,7 +38,7 @@ def write_report(db: str | Path, out_dir: str | Path, *, runs_dir: str | Path | 
     ``link`` to them relatively, or ``none``. ``paper_training``: the paper's training set whose
     numbers go beside ours. ``progress(done, total)`` is called as episode pages are written.
     """
-    from seal.report import html, paper_layout, plots, tables
+    from seal.report import html, lift, paper_layout, plots, tables
 
     if media not in html.MEDIA_MODES:
         raise InvalidInput(f"unknown media mode {media!r}; valid: {', '.join(html.MEDIA_MODES)}")
@@ -57,6 +57,8 @@ def write_report(db: str | Path, out_dir: str | Path, *, runs_dir: str | Path | 
     alignment = tables.alignment_rows(data)
     endings = tables.ending_rows(data)
     layouts = paper_layout.layout_sections(data, paper, paper_training)
+    lifts = lift.lift_rows(data)
+    shares = lift.share_rows(data)
 
     csvs = []
     for st in success:
@@ -65,6 +67,8 @@ def write_report(db: str | Path, out_dir: str | Path, *, runs_dir: str | Path | 
     csvs.append(_write(out / "csv" / "paired_differences.csv", tables.paired_csv(paired)))
     csvs.append(_write(out / "csv" / "seal_minus_base.csv",
                        paper_layout.differences_csv([lay for _, group in layouts for lay in group])))
+    csvs.append(_write(out / "csv" / "lift_by_suite.csv", lift.lift_csv(lifts)))
+    csvs.append(_write(out / "csv" / "share_of_oracle_lift.csv", lift.share_csv(shares)))
     csvs.append(_write(out / "csv" / "runtime.csv", tables.runtime_csv(runtime)))
     csvs.append(_write(out / "csv" / "alignment.csv", tables.alignment_csv(alignment)))
     csvs.append(_write(out / "csv" / "endings.csv", tables.ending_csv(endings)))
@@ -77,6 +81,7 @@ def write_report(db: str | Path, out_dir: str | Path, *, runs_dir: str | Path | 
     sections = [("Success", [tables.success_display(st) for st in success]),
                 *[(title, [paper_layout.layout_display(lay) for lay in group]) for title, group in layouts],
                 ("Paired differences", [tables.paired_display(paired)]),
+                ("Lift", [lift.lift_display(lifts), lift.share_display(shares)]),
                 ("Alignment", [tables.alignment_display(alignment)]),
                 ("Endings", [tables.ending_display(endings)]),
                 ("Runtime", [tables.runtime_display(runtime)]),

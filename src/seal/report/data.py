@@ -135,13 +135,17 @@ class ReportData:
               task: int | None = None) -> list[tuple[bool, bool]]:
         """(A succeeded, B succeeded) on every (suite, task, trial) both methods ran (within one
         suite, or one task of it, if given): the same init state and seed, so the comparison is paired."""
+        return self.outcomes([hash_a, hash_b], suite, task)
+
+    def outcomes(self, hashes: list[str], suite: str | None = None, task: int | None = None) -> list[tuple[bool, ...]]:
+        """One tuple of successes (in ``hashes``' order) per (suite, task, trial) every method ran."""
         out = []
         for (h, s, t, trial), ok in sorted(self._outcome.items()):
-            if h != hash_a or (suite is not None and s != suite) or (task is not None and t != task):
+            if h != hashes[0] or (suite is not None and s != suite) or (task is not None and t != task):
                 continue
-            other = self._outcome.get((hash_b, s, t, trial))
-            if other is not None:
-                out.append((ok, other))
+            others = [self._outcome.get((o, s, t, trial)) for o in hashes[1:]]
+            if None not in others:
+                out.append((ok, *others))
         return out
 
     def label_of(self, row: TrialRow) -> str:
