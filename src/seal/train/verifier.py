@@ -404,6 +404,7 @@ def case_policies(datas: list[Path], arrays, train_idx: np.ndarray) -> dict:
                         "policy_ckpt_digest": info.get("policy_ckpt_digest") or info.get("vla_ckpt_digest")})
     return {"train_cases_by_policy": dict(sorted(trained.items())), "sources": sources}
 
+
 def _init_checkpoint(init_from: str | Path, cfg: VerifierTrainConfig):
     """(net, config, vocab, provenance) of the checkpoint a fine-tune starts from."""
     path = checkpoint_dir(init_from)
@@ -488,7 +489,8 @@ def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig,
         save_checkpoint(out, judged, config, manifest or {"step": step, "data": ",".join(map(str, datas)),
                                                           "data_fingerprint": fingerprint, "case_policies": sources})
         _save_state(out, {"identity": json.dumps(cfg.identity()), "data": fingerprint, "step": step,
-                          "optimizer": opt.state_dict(), "init_digest": init[3]["digest"] if init else None} | ({"raw": net.state_dict()} if cfg.ema else {}))
+                          "optimizer": opt.state_dict(), "init_digest": init[3]["digest"] if init else None}
+                    | ({"raw": net.state_dict()} if cfg.ema else {}))
 
     net.train()
     last_save = time.monotonic()
