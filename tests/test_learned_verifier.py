@@ -257,16 +257,27 @@ def test_without_a_shipped_checkpoint_plain_learned_says_how_to_make_one(tmp_pat
         make_verifier("learned")
 
 
-def test_the_shipped_checkpoint_matches_its_manifest_and_judges(data):
+@pytest.mark.parametrize("name", ["learned", "learned:expert"])
+def test_the_shipped_checkpoints_match_their_manifests_and_judge(data, name):
     import hashlib
 
-    manifest = json.loads((DEFAULT_CHECKPOINT / "manifest.json").read_text())
-    for name, entry in manifest["files"].items():
-        blob = (DEFAULT_CHECKPOINT / name).read_bytes()
-        assert (len(blob), hashlib.sha256(blob).hexdigest()) == (entry["bytes"], entry["sha256"]), name
+    from seal.verify.learned import CHECKPOINT, checkpoint_dir
+
+    directory = checkpoint_dir(name.partition(":")[2] or None)
+    manifest = json.loads((directory / "manifest.json").read_text())
+    for file, entry in manifest["files"].items():
+        blob = (directory / file).read_bytes()
+        assert (len(blob), hashlib.sha256(blob).hexdigest()) == (entry["bytes"], entry["sha256"]), file
     assert manifest["files"]["model.safetensors"]["bytes"] <= 20e6
     assert manifest["command"].startswith("seal train verifier ") and manifest["heldout_inits"]["n"] > 0
-    verifier = make_verifier("learned")
+    # the earlier one keeps its name in results stores; the shipped one names the policy its cases came from
+    if name == "learned:expert":
+        assert CHECKPOINT.digest(directory) == "8818a7a2714f"
+    else:
+        assert directory == DEFAULT_CHECKPOINT
+        assert manifest["case_policies"]["init_from"]["digest"] == "8818a7a2714f"
+        assert {s["policy_ckpt_digest"] for s in manifest["case_policies"]["sources"]} >= {"009dcdd7fb35"}
+    verifier = make_verifier(name)
     verdicts = verifier.verify_batch(_requests(data, 4))
     assert len(verdicts) == 4 and all(v.success in (True, False) and 0.0 <= v.score <= 1.0 for v in verdicts)
 

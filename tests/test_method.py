@@ -29,6 +29,7 @@ def test_config_hashes_of_older_stores_are_kept():
 
 SHIPPED_VLA = Path(__file__).resolve().parents[1] / "src/seal/policies/vla/checkpoints"
 SHIPPED_VERIFIER = Path(__file__).resolve().parents[1] / "src/seal/verify/checkpoints/learned"
+EXPERT_VERIFIER = SHIPPED_VERIFIER.parent / "expert"  # the first shipped one, `learned:expert`
 
 
 def _shipped_digests() -> dict:
@@ -37,9 +38,9 @@ def _shipped_digests() -> dict:
 
     vla = {name: json.loads((SHIPPED_VLA / name / "manifest.json").read_text())["files"]["model.safetensors"]["sha256"][:12]
            for name in ("reason", "twin")}
-    learned = hashlib.sha1((SHIPPED_VERIFIER / "model.safetensors").read_bytes()
-                           + (SHIPPED_VERIFIER / "config.json").read_bytes()).hexdigest()[:12]
-    return {**vla, "learned": learned}
+    learned = {name: hashlib.sha1((d / "model.safetensors").read_bytes() + (d / "config.json").read_bytes()).hexdigest()[:12]
+               for name, d in (("learned", SHIPPED_VERIFIER), ("learned:expert", EXPERT_VERIFIER))}
+    return {**vla, **learned}
 
 
 def _fixed_value_checkpoint(tmp_path: Path) -> Path:
@@ -58,7 +59,8 @@ def test_config_hashes_of_plugins_are_kept(tmp_path):
     """Hashes, labels and canonical forms of every plug-in's settings, computed with the code before the
     plug-ins owned their options (issue 35): stores made then must find their trials now."""
     # These pins name the shipped weights of today; a retrained shipped checkpoint is a new method (re-pin then).
-    assert _shipped_digests() == {"reason": "009dcdd7fb35", "twin": "14bb7098169e", "learned": "8818a7a2714f"}
+    assert _shipped_digests() == {"reason": "009dcdd7fb35", "twin": "14bb7098169e", "learned": "808648b1ea87",
+                                  "learned:expert": "8818a7a2714f"}
     value = _fixed_value_checkpoint(tmp_path)
     cases = [  # (spec, config hash, label, canonical form: its keys in this order)
         (MethodSpec(policy="vla"), "0c35fb9f53", "seal[policy=vla,render=fast,policy_ckpt=009dcdd7fb35]",
@@ -72,11 +74,12 @@ def test_config_hashes_of_plugins_are_kept(tmp_path):
          "base[policy=vla,render=fast,policy_ckpt=14bb7098169e]", None),
         (MethodSpec(policy="vla", policy_ckpt="twin", planner="annotations", check_every=40), "1dc4345fc4",
          "seal[policy=vla,render=fast,check_every=40,planner=annotations,policy_ckpt=14bb7098169e]", None),
-        (MethodSpec(verifier=f"learned:{SHIPPED_VERIFIER}"), "df755dab3f", "seal[verifier=learned,model=8818a7a2714f]",
+        # the verifier every table before 2026-12-04 used, by its name and by its directory
+        (MethodSpec(verifier="learned:expert"), "df755dab3f", "seal[verifier=learned,model=8818a7a2714f]",
          {"method": "seal", "k": 10, "rounds": 2, "verifier": "learned", "model": "8818a7a2714f", "false_positive": 0.0,
           "false_negative": 0.0, "policy": "scripted", "knobs": "misaligned", "mode": "sync", "render": "stock",
           "done_check": "verify"}),
-        (MethodSpec(verifier="learned", model=str(SHIPPED_VERIFIER), done_check="trust"), "38151112c4",
+        (MethodSpec(verifier="learned", model=str(EXPERT_VERIFIER), done_check="trust"), "38151112c4",
          "seal[verifier=learned,model=8818a7a2714f,done_check=trust]", None),
         (MethodSpec(method="value", value_ckpt=str(value)), "34e1da3e4d", "value[ckpt=vgps]",
          {"method": "value", "k": 10, "policy": "scripted", "knobs": "misaligned", "mode": "sync", "render": "stock",

@@ -38,6 +38,10 @@ from seal.errors import InvalidInput
 from seal.verify.base import Verdict, VerifyRequest
 
 DEFAULT_CHECKPOINT = Path(__file__).resolve().parent / "checkpoints" / "learned"
+# Earlier shipped checkpoints, kept so the tables made with them stay reproducible: `learned:NAME`.
+# expert: the first one (2026-12-02), trained on the scripted expert's rounds and demonstrations; the
+# shipped one is it fine-tuned on the reasoning VLA's own rounds (docs/verifier.md).
+SHIPPED = {"expert": DEFAULT_CHECKPOINT.parent / "expert"}
 KIND = "seal-learned-verifier"
 WEIGHTS = "model.safetensors"
 CONFIG = "config.json"
@@ -220,9 +224,9 @@ def load_checkpoint(path: str | Path | None):
 
 
 def checkpoint_dir(path: str | Path | None) -> Path:
-    """The checkpoint directory ``path`` names (itself, or the directory of a file in it; None: the
-    shipped one)."""
-    path = Path(path) if path else DEFAULT_CHECKPOINT
+    """The checkpoint directory ``path`` names: a name in ``SHIPPED`` (an earlier shipped checkpoint), a
+    directory, or a file in one; None: the shipped one."""
+    path = SHIPPED.get(str(path), Path(path)) if path else DEFAULT_CHECKPOINT
     path = path.parent if path.is_file() else path
     if not path.is_dir():
         raise InvalidInput(f"no learned-verifier checkpoint at {path}: train one with `seal train verifier --data DIR "
@@ -240,7 +244,7 @@ class LearnedVerifier:
         """``threads``: torch's intra-op threads (process-wide). One by default: on this 2-core
         machine shared with simulator workers, two threads made a K=10 batch ~10x slower."""
         torch = _torch()
-        self.path = Path(path) if path else DEFAULT_CHECKPOINT
+        self.path = checkpoint_dir(path)
         self.net, self.config, self.vocab = load_checkpoint(self.path)
         self.threshold = float(self.config.get("threshold", 0.5) if threshold is None else threshold)
         if not 0.0 <= self.threshold <= 1.0:
