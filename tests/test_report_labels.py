@@ -62,6 +62,15 @@ def test_standard_methods_read_as_a_person_would_write_them():
     assert display_name(MethodSpec(method="random").canonical()) == "scripted expert + random pick"
 
 
+def test_the_earlier_shipped_verifier_keeps_a_name_of_its_own():
+    # rows made with the first shipped learned verifier must not read as the current one's
+    current = MethodSpec(policy="vla", verifier="learned").canonical()
+    earlier = MethodSpec(policy="vla", verifier="learned:expert").canonical()
+    assert current["model"] != earlier["model"]
+    assert display_name(current) == "reasoning VLA + SEAL (learned verifier)"
+    assert display_name(earlier) == "reasoning VLA + SEAL (learned verifier from expert rounds)"
+
+
 def test_the_paper_column_follows_the_policy():
     expected = {"twin (pi0)": "pi0", "twin + V-GPS": "pi0_vgps", "reasoning VLA": "pi0_reason",
                 "reasoning VLA + SEAL (oracle)": "seal", "reasoning VLA + SEAL (learned verifier)": "seal"}

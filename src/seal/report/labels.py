@@ -31,6 +31,7 @@ TWIN = SHIPPED_VLA_NAMES["twin"]
 STEERING_NAMES = {"seal": "SEAL", "value": "V-GPS", "random": "random pick"}
 VERIFIER_NAMES = {"oracle": "oracle", "noisy": "noisy oracle", "learned": "learned verifier",
                   "openai": "OpenAI VLM", "gemini": "Gemini VLM"}
+EARLIER_VERIFIER_NAMES = {"expert": "expert rounds"}  # `learned:expert`: trained on the scripted expert's rounds
 # Settings a name never shows: identities already in the policy's name, digests, or what the
 # method name says.
 _SILENT = {"method", "policy", "policy_ckpt", "value_ckpt"}
@@ -60,6 +61,21 @@ def shipped_vlas() -> dict[str, KnownVLA]:
         if digest:
             render = (manifest.get("render") or {}).get("mode", "stock")
             out[digest[:12]] = KnownVLA(SHIPPED_VLA_NAMES.get(key, key), render)
+    return out
+
+
+def earlier_verifiers() -> dict[str, str]:
+    """Weights digest -> name of the learned-verifier checkpoints shipped before the current one
+    (`seal.verify.learned.SHIPPED`), so rows made with them do not read as the shipped verifier's."""
+    from seal.errors import InvalidInput
+    from seal.verify.learned import CHECKPOINT, SHIPPED
+
+    out = {}
+    for name, path in SHIPPED.items():
+        try:
+            out[CHECKPOINT.digest(path)] = f"learned verifier from {EARLIER_VERIFIER_NAMES.get(name, name)}"
+        except (InvalidInput, OSError):  # a damaged or missing copy: its rows keep the generic name
+            continue
     return out
 
 
@@ -138,6 +154,10 @@ def _verifier_phrase(config: dict) -> str:
     model = config.get("model")
     if verifier in ("openai", "gemini") and model:
         return str(model)
+    if verifier == "learned" and model:
+        earlier = earlier_verifiers().get(str(model))
+        if earlier:
+            return earlier
     return VERIFIER_NAMES.get(verifier, verifier)
 
 
