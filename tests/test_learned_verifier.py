@@ -499,8 +499,14 @@ def test_fine_tuning_starts_from_the_checkpoint_keeps_its_vocabulary_and_resumes
     assert all(torch.equal(x, y) for x, y in zip(c.state_dict().values(), d.state_dict().values()))
     with pytest.raises(InvalidInput, match="started from"):
         train_verifier(data, tmp_path / "half", cfg)
-    with pytest.raises(InvalidInput, match="--image-size 32"):
-        train_verifier(data, tmp_path / "big", VerifierTrainConfig(**{**cfg.__dict__, "image_size": 48}), init_from=base)
+    # another input size: the same weights (convolutions and global pooling) read the larger images
+    train_verifier(data, tmp_path / "big", VerifierTrainConfig(**{**cfg.__dict__, "image_size": 48, "steps": 0}),
+                   init_from=base)
+    big, big_config, _ = load_checkpoint(tmp_path / "big")
+    assert big_config["image_size"] == 48 and big.image_size == 48
+    assert all(torch.equal(x, y) for x, y in zip(a.state_dict().values(), big.state_dict().values()))
+    manifest = json.loads((tmp_path / "big" / "manifest.json").read_text())
+    assert manifest["case_policies"]["init_from"]["image_size_from"] == 32
     assert main(["train", "value", "--out", str(tmp_path / "v"), "--init-from", str(base)]) == 2
 
 

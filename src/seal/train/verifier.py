@@ -409,10 +409,15 @@ def _init_checkpoint(init_from: str | Path, cfg: VerifierTrainConfig):
     """(net, config, vocab, provenance) of the checkpoint a fine-tune starts from."""
     path = checkpoint_dir(init_from)
     net, config, vocab = load_checkpoint(path)
+    provenance = {"path": str(path), "digest": CHECKPOINT.digest(path)}
     if int(config["image_size"]) != cfg.image_size:
-        raise InvalidInput(f"--init-from {init_from} reads {config['image_size']}-px images; this run was asked for "
-                           f"--image-size {cfg.image_size}: pass --image-size {config['image_size']} or train from scratch")
-    return net, config, vocab, {"path": str(path), "digest": CHECKPOINT.digest(path)}
+        # The network is convolutional with global pooling, so the same weights read any input size:
+        # a fine-tune may look closer (a place is a few pixels at 96 px) and relearn the scale.
+        provenance["image_size_from"] = int(config["image_size"])
+        config = {**config, "image_size": cfg.image_size}
+        weights, net = net.state_dict(), build_net(config)
+        net.load_state_dict(weights)
+    return net, config, vocab, provenance
 
 
 def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig, *, progress=None, threads: int | None = 1,
