@@ -480,7 +480,8 @@ def test_prepare_images_is_an_area_average_of_the_224px_view():
 
 def test_fine_tuning_starts_from_the_checkpoint_keeps_its_vocabulary_and_resumes_exactly(run, data, tmp_path):
     base, _ = run
-    cfg = VerifierTrainConfig(steps=4, batch_size=8, image_size=32, holdout_tasks=("libero_10/1",), holdout_inits=0.25)
+    cfg = VerifierTrainConfig(steps=4, batch_size=8, image_size=32, lr=3e-4, holdout_tasks=("libero_10/1",),
+                              holdout_inits=0.25)
     # zero steps: the fine-tune's checkpoint is its starting point, to the bit
     train_verifier(data, tmp_path / "zero", VerifierTrainConfig(**{**cfg.__dict__, "steps": 0}), init_from=base)
     (a, config_a, vocab_a), (b, config_b, _) = load_checkpoint(base), load_checkpoint(tmp_path / "zero")
