@@ -57,7 +57,7 @@ def write_report(db: str | Path, out_dir: str | Path, *, runs_dir: str | Path | 
     alignment = tables.alignment_rows(data)
     endings = tables.ending_rows(data)
     layouts = paper_layout.layout_sections(data, paper, paper_training)
-    lifts = lift.lift_rows(data)
+    lifts = lift.lift_rows([lay for _, group in layouts for lay in group])
     shares = lift.share_rows(data)
 
     csvs = []

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from seal.report.data import MethodInfo, ReportData
-from seal.report.paper_layout import base_of
+from seal.report.paper_layout import PaperLayout, base_of
 from seal.report.stats import PairedDifference, paired_difference
 from seal.report.tables import Table, num, to_csv
 
@@ -45,21 +45,14 @@ class LiftRow:
         return self.lift.diff / ref.diff
 
 
-def lift_rows(data: ReportData) -> list[LiftRow]:
-    out = []
-    for seal in data.methods:
-        base = base_of(seal, data.methods)
-        if base is None:
-            continue
-        ref = None
-        if IN_DISTRIBUTION in data.suites:
-            pairs = data.pairs(seal.config_hash, base.config_hash, IN_DISTRIBUTION)
-            ref = paired_difference(pairs) if pairs else None
-        for suite in data.suites:
-            pairs = data.pairs(seal.config_hash, base.config_hash, suite)
-            if pairs:
-                out.append(LiftRow(suite, seal, base, paired_difference(pairs), None if suite == IN_DISTRIBUTION else ref))
-    return out
+def lift_rows(layouts: list[PaperLayout]) -> list[LiftRow]:
+    """The suite-level SEAL-minus-base differences the paper layouts already hold (their "average"
+    rows), each beside the same pair's difference on LIBERO-10."""
+    reference = {(d.seal.config_hash, d.base.config_hash): d.by_key["average"]
+                 for layout in layouts if layout.suite == IN_DISTRIBUTION for d in layout.differences}
+    return [LiftRow(layout.suite, d.seal, d.base, d.by_key["average"],
+                    None if layout.suite == IN_DISTRIBUTION else reference.get((d.seal.config_hash, d.base.config_hash)))
+            for layout in layouts for d in layout.differences if d.by_key["average"].n]
 
 
 def lift_display(rows: list[LiftRow]) -> Table:
@@ -110,13 +103,15 @@ def oracle_twin(seal: MethodInfo, methods: list[MethodInfo]) -> MethodInfo | Non
     already uses the oracle)."""
     if seal.method != "seal" or str(seal.config.get("verifier", "oracle")) == "oracle":
         return None
-    want = {k: v for k, v in seal.config.items() if k not in VERIFIER_KEYS}
-    for m in methods:
-        if m.method == "seal" and str(m.config.get("verifier", "oracle")) == "oracle" and \
-                not any(m.config.get(k) for k in VERIFIER_KEYS[1:]) and \
-                {k: v for k, v in m.config.items() if k not in VERIFIER_KEYS} == want:
-            return m
-    return None
+    def rest(config: dict) -> dict:
+        return {k: v for k, v in config.items() if k not in VERIFIER_KEYS}
+
+    def exact_oracle(config: dict) -> bool:  # the oracle without injected errors
+        return (str(config.get("verifier", "oracle")) == "oracle" and not config.get("model")
+                and not config.get("false_positive") and not config.get("false_negative"))
+
+    return next((m for m in methods if m.method == "seal" and exact_oracle(m.config)
+                 and rest(m.config) == rest(seal.config)), None)
 
 
 def share_of_lift(outcomes: np.ndarray, *, draws: int = BOOTSTRAP_DRAWS, seed: int = 0):
