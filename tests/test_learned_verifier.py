@@ -509,6 +509,12 @@ def test_fine_tuning_starts_from_the_checkpoint_keeps_its_vocabulary_and_resumes
     manifest = json.loads((tmp_path / "big" / "manifest.json").read_text())
     assert manifest["case_policies"]["init_from"]["image_size_from"] == 32
     assert main(["train", "value", "--out", str(tmp_path / "v"), "--init-from", str(base)]) == 2
+    # `learned` names the shipped checkpoint, as in --verifier learned
+    assert main(["train", "verifier", "--data", str(data), "--init-from", "learned", "--image-size", "32",
+                 "--steps", "1", "--out", str(tmp_path / "from_shipped")]) == 0
+    from seal.verify.learned import CHECKPOINT
+    manifest = json.loads((tmp_path / "from_shipped" / "manifest.json").read_text())
+    assert manifest["case_policies"]["init_from"]["digest"] == CHECKPOINT.digest(DEFAULT_CHECKPOINT)
 
 
 def test_averaging_two_seeds_gives_one_checkpoint_of_the_mean_weights(run, data, tmp_path, capsys):

@@ -138,15 +138,6 @@ def _cmd_train(args) -> int:
     return 0
 
 
-def _verifier_init(name: str | None):
-    """``learned`` names the shipped checkpoint, as in ``--verifier learned``."""
-    if name == "learned":
-        from seal.verify.learned import DEFAULT_CHECKPOINT
-
-        return DEFAULT_CHECKPOINT
-    return name
-
-
 def _cmd_train_verifier(args) -> int:
 
     from seal.train.verifier import VerifierTrainConfig, train_verifier
@@ -184,7 +175,7 @@ def _cmd_train_verifier(args) -> int:
     with _stage_bars({"load": "decoding images", "train": "training"}, lambda info: info or "") as progress:
         summary = train_verifier([Path(d) for d in args.data.split(",") if d], Path(args.out), cfg, progress=progress,
                                  threads=1 if args.threads is None else args.threads,
-                                 command="seal " + " ".join(args.argv), init_from=_verifier_init(args.init_from))
+                                 command="seal " + " ".join(args.argv), init_from=args.init_from)
     keys = ("step", "split", "heldout_inits", "heldout_tasks")
     print(json.dumps({k: ({m: v for m, v in summary[k].items() if m != "per_kind"} if isinstance(summary[k], dict)
                           and "per_kind" in summary[k] else summary[k]) for k in keys}))

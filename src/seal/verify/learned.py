@@ -224,9 +224,10 @@ def load_checkpoint(path: str | Path | None):
 
 
 def checkpoint_dir(path: str | Path | None) -> Path:
-    """The checkpoint directory ``path`` names: a name in ``SHIPPED`` (an earlier shipped checkpoint), a
-    directory, or a file in one; None: the shipped one."""
-    path = SHIPPED.get(str(path), Path(path)) if path else DEFAULT_CHECKPOINT
+    """The checkpoint directory ``path`` names: ``learned`` or None (the shipped one), a name in ``SHIPPED``
+    (an earlier shipped checkpoint), a directory, or a file in one."""
+    names = {"learned": DEFAULT_CHECKPOINT, **SHIPPED}
+    path = names.get(str(path), Path(path)) if path else DEFAULT_CHECKPOINT
     path = path.parent if path.is_file() else path
     if not path.is_dir():
         raise InvalidInput(f"no learned-verifier checkpoint at {path}: train one with `seal train verifier --data DIR "
