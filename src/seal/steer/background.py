@@ -69,18 +69,22 @@ class BackgroundVerifier:
         return asyncio.run_coroutine_threadsafe(self._run(request, self._round), self._loop)
 
     def submit_together(self, requests: list[VerifyRequest]) -> list[Future]:
-        """Start verifying ``requests`` in the same turn of the event loop: none starts before all
-        are submitted, so a batching verifier sees them as one batch (its make-up, and with it the
-        last bits of each probability, is then no matter of timing). Futures as `submit`'s."""
-        gate = asyncio.Event()
+        """Start verifying ``requests`` in the same turn of the event loop, in their order, so a
+        batching verifier sees them as one batch (its make-up, and with it the last bits of each
+        probability, is then no matter of timing). Futures as `submit`'s.
 
-        async def gated(request: VerifyRequest, round_: int) -> Verdict:
-            await gate.wait()
-            return await self._run(request, round_)
+        One coroutine creates every task before any runs: tasks start in creation order. (Gating
+        tasks created one by one on an event was not enough: a task created after the gate opened
+        skips the wait and runs before the earlier ones, which wake a turn later.)"""
+        round_ = self._round
 
-        futures = [asyncio.run_coroutine_threadsafe(gated(r, self._round), self._loop) for r in requests]
-        self._loop.call_soon_threadsafe(gate.set)  # after every task above is scheduled (FIFO)
-        return futures
+        async def start_all() -> list[asyncio.Task]:
+            return [asyncio.ensure_future(self._run(r, round_)) for r in requests]
+
+        tasks = asyncio.run_coroutine_threadsafe(start_all(), self._loop).result()
+        # Awaiting a task from a thread-safe future keeps `Future.cancel()` working: cancelling
+        # the waiter cancels the task it waits on.
+        return [asyncio.run_coroutine_threadsafe(_wait(t), self._loop) for t in tasks]
 
     async def _run(self, request: VerifyRequest, round_: int = 0) -> Verdict:
         start = time.perf_counter()
@@ -128,3 +132,7 @@ async def _cancel_pending() -> None:
     for t in tasks:
         t.cancel()
     await asyncio.gather(*tasks, return_exceptions=True)
+
+
+async def _wait(task: asyncio.Task) -> Verdict:
+    return await task
