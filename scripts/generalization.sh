@@ -47,9 +47,10 @@ VALUE_CKPT="${VALUE_CKPT:-}"
 REPORT_ARGS="${REPORT_ARGS:---media link}"
 RETRY_ERRORS="${RETRY_ERRORS:-}"
 
-# Methods in run order, cheapest first (scripts/generalization_plan.py holds the same table and the
-# cost estimates): within a suite every method runs before the next suite starts, so a run that
-# stops early already has paired rows for the suites it finished.
+# Methods in table order (scripts/generalization_plan.py holds the same table and the cost
+# estimates). One `seal eval` per suite takes every method, and it runs a start under each method
+# before the next start: a run stopped at any point has rows paired start by start, not all of the
+# cheap methods and none of the steered ones.
 ORDER=(twin twin_vgps vla vla_seal vla_seal_learned)
 declare -A ITEM=(
   [twin]="base:policy=vla:policy_ckpt=twin"
@@ -123,9 +124,10 @@ if [ -n "$MAX_STEPS" ] && [ "$DB" = "$default_db" ]; then
 fi
 
 trials_of() { if [ "$1" = composition ]; then echo "$COMP_TRIALS"; else echo "$TRIALS"; fi; }
-command_for() {  # the seal eval command of one suite and method, as arguments
-  local suite="$1" m="$2"
-  cmd=("$SEAL" eval --suite "$suite" --methods "${ITEM[$m]}" --trials "$(trials_of "$suite")" --db "$DB"
+command_for() {  # the seal eval command of one suite and every method, as arguments
+  local suite="$1" items=() m
+  for m in "${methods[@]}"; do items+=("${ITEM[$m]}"); done
+  cmd=("$SEAL" eval --suite "$suite" --methods "$(IFS=,; echo "${items[*]}")" --trials "$(trials_of "$suite")" --db "$DB"
        --render fast --workers 1 --video none)
   [ -n "$TASKS" ] && cmd+=(--tasks "$TASKS")
   [ -n "$MAX_STEPS" ] && cmd+=(--max-steps "$MAX_STEPS")
@@ -136,10 +138,8 @@ command_for() {  # the seal eval command of one suite and method, as arguments
 if [ "$mode" = dry ]; then
   for s in ${ALL_SUITES//,/ }; do
     [[ ",$SUITES," == *",$s,"* ]] || continue
-    for m in "${methods[@]}"; do
-      command_for "$s" "$m"
-      printf '%s\n' "${cmd[*]}"
-    done
+    command_for "$s"
+    printf '%s\n' "${cmd[*]}"
   done
   exit 0
 fi
@@ -167,14 +167,14 @@ echo "generalization.sh: database $DB, logs in $logs"
 
 for s in ${ALL_SUITES//,/ }; do
   [[ ",$SUITES," == *",$s,"* ]] || continue
-  for m in "${methods[@]}"; do
-    command_for "$s" "$m"
-    log="$logs/$s-$m.log"
-    echo "generalization.sh: $s, ${NAME[$m]} ($(trials_of "$s") trials per task) -> $log"
-    { echo "=== $(date -u +%Y-%m-%dT%H:%M:%SZ) ${cmd[*]}"; } >> "$log"
-    # the log keeps every attempt, appended; seal eval's last stdout line is its JSON summary
-    "${cmd[@]}" 2>&1 | tee -a "$log"
-  done
+  command_for "$s"
+  log="$logs/$s.log"
+  names=()
+  for m in "${methods[@]}"; do names+=("${NAME[$m]}"); done
+  echo "generalization.sh: $s, $(IFS=';'; echo "${names[*]}" | sed 's/;/; /g') ($(trials_of "$s") trials per task) -> $log"
+  { echo "=== $(date -u +%Y-%m-%dT%H:%M:%SZ) ${cmd[*]}"; } >> "$log"
+  # the log keeps every attempt, appended; seal eval's last stdout line is its JSON summary
+  "${cmd[@]}" 2>&1 | tee -a "$log"
 done
 
 report_log="$logs/report.log"

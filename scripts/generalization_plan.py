@@ -33,7 +33,7 @@ from seal.sim.suites import MAX_STEPS, parse_task_ids
 
 # ---- the run the script does: keep in step with scripts/generalization.sh -----------------------
 SUITES = ("libero_10", "lang_rephrase", "lang_object_property", "visual_scene", "visual_viewpoint", "composition")
-# short name -> (display name, `seal eval --methods` item); in the script's run order, cheapest first
+# short name -> (display name, `seal eval --methods` item); in the tables' order
 METHODS = {
     "twin": ("twin (pi0)", "base:policy=vla:policy_ckpt=twin"),
     "twin_vgps": ("twin + V-GPS", "value:policy=vla:policy_ckpt=twin:value_ckpt={value_ckpt}:k=10"),

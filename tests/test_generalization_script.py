@@ -75,12 +75,13 @@ def test_dry_run_matches_plan_and_skips_vgps(tmp_path):
     want = [(s, m["method"], e["trials_per_task"]) for s, e in plan["suites"].items()
             for m in e["methods"].values() if m["runs"]]
     got = []
-    for line in dry.stdout.splitlines():
+    lines = dry.stdout.splitlines()
+    for line in lines:  # one command per suite, every method in it: trials are paired start by start
         words = line.split()
-        got.append((words[words.index("--suite") + 1], words[words.index("--methods") + 1],
-                    int(words[words.index("--trials") + 1])))
+        got += [(words[words.index("--suite") + 1], method, int(words[words.index("--trials") + 1]))
+                for method in words[words.index("--methods") + 1].split(",")]
         assert "--render fast --workers 1 --video none" in line and str(tmp_path / "g.db") in line
-    assert got == want and len(got) == 6 * 4
+    assert got == want and len(got) == 6 * 4 and len(lines) == 6
 
     # a VALUE_CKPT directory without weights: refused before anything runs or any database is made
     bad = tmp_path / "not_a_value_run"
@@ -111,7 +112,7 @@ def test_script_runs_one_trial_and_resumes(tmp_path):
     assert len(rows) == 1
     method, suite, task, trial, steps, finished = rows[0]
     assert method.startswith("base[policy=vla") and (suite, task, trial) == ("libero_10", 5, 0) and steps == 10
-    assert (db.parent / "g_logs" / "libero_10-vla.log").is_file()
+    assert (db.parent / "g_logs" / "libero_10.log").is_file()
     assert (db.parent / "g_report" / "report.md").is_file()
     assert '"ran": 1' in first.stdout
 
