@@ -79,6 +79,16 @@ def _ending(suite: str, success: bool) -> str:
     return "policy_finished" if suite == "composition" else ""
 
 
+def _refusals(spec: MethodSpec, suite: str, task: int, t: int) -> int:
+    """Claims of completion the verifier refused: SEAL (K=10) was sent back once in two libero_10
+    episodes it then solved, and twice in two composition episodes that still ended on a claim."""
+    if spec is not SEAL:
+        return 0
+    if (suite, task) == ("libero_10", 0) and t < 2:
+        return 1
+    return 2 if suite == "composition" and t in (4, 5) else 0
+
+
 @pytest.fixture(scope="module")
 def store_path(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("report")
@@ -100,6 +110,7 @@ def store_path(tmp_path_factory) -> Path:
                                        cost_usd=0.01, subplans=["pick up the soup", "place it in the basket"],
                                        subplans_audited=2, subplans_aligned=1 + (spec.method == "seal"),
                                        ended_by=_ending(suite, t < count),
+                                       done_refusals=_refusals(spec, suite, task, t),
                                        trace_path=trace, video_path=video, worker="w1"))
         # A seal trial base never ran: must not enter any paired comparison.
         store.add(TrialRow(method=SEAL.label, config_hash=SEAL.config_hash, suite="libero_10", task=0, trial=N,
@@ -215,6 +226,14 @@ def test_csv_layout(report):
     assert {k[1]: v for k, v in endings.items() if k[0] == BASE_N} == {
         "goal_holds": (15, 0), "idle": (1, 1), "not recorded": (4, 4), "policy_finished": (10, 10)}
     assert endings[(SEAL2_N, "error")] == (1, 1)
+    claims = {r["method"]: tuple(int(r[k]) for k in ("trials", "episodes_with_false_claim", "claims_refused",
+                                                        "ended_on_false_claim", "refused_then_solved"))
+              for r in csv.DictReader(by_name["completions.csv"].read_text().splitlines())}
+    # base never checks: its 10 composition failures ended on a claim. SEAL: 6 composition failures
+    # ended on a claim (2 of them after refusals), 2 libero_10 episodes were sent back and solved.
+    assert claims[BASE_N] == (30, 10, 0, 10, 0)
+    assert claims[SEAL_N] == (31, 8, 6, 6, 2)
+    assert claims[SEAL2_N] == (21, 0, 0, 0, 0)
     assert float(align[BASE_N]["alignment_rate"]) == 0.5 and float(align[SEAL2_N]["alignment_rate"]) == 1.0
     assert align[BASE_N]["subplans_audited"] == str(2 * N * 3)  # 2 per trial, 3 tasks; totals, not a mean of rates
     errors = list(csv.DictReader(by_name["errors.csv"].read_text().splitlines()))

@@ -56,6 +56,7 @@ def write_report(db: str | Path, out_dir: str | Path, *, runs_dir: str | Path | 
     runtime = tables.runtime_rows(data)
     alignment = tables.alignment_rows(data)
     endings = tables.ending_rows(data)
+    completions = tables.completion_rows(data)
     layouts = paper_layout.layout_sections(data, paper, paper_training)
     lifts = lift.lift_rows([lay for _, group in layouts for lay in group])
     shares = lift.share_rows(data)
@@ -72,6 +73,7 @@ def write_report(db: str | Path, out_dir: str | Path, *, runs_dir: str | Path | 
     csvs.append(_write(out / "csv" / "runtime.csv", tables.runtime_csv(runtime)))
     csvs.append(_write(out / "csv" / "alignment.csv", tables.alignment_csv(alignment)))
     csvs.append(_write(out / "csv" / "endings.csv", tables.ending_csv(endings)))
+    csvs.append(_write(out / "csv" / "completions.csv", tables.completion_csv(completions)))
     csvs.append(_write(out / "csv" / "errors.csv", tables.error_csv(data)))
     csvs.append(_write(out / "csv" / "verifier_errors.csv", tables.verifier_csv(data)))
 
@@ -83,7 +85,7 @@ def write_report(db: str | Path, out_dir: str | Path, *, runs_dir: str | Path | 
                 ("Paired differences", [tables.paired_display(paired)]),
                 ("Lift", [lift.lift_display(lifts), lift.share_display(shares)]),
                 ("Alignment", [tables.alignment_display(alignment)]),
-                ("Endings", [tables.ending_display(endings)]),
+                ("Endings", [tables.ending_display(endings), tables.completion_display(completions)]),
                 ("Runtime", [tables.runtime_display(runtime)]),
                 ("Errors", [tables.error_display(data), tables.verifier_display(data)])]
     md = _write(out / "report.md", _markdown(data, sections, plot_paths, out))

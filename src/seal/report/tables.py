@@ -390,8 +390,8 @@ def ending_display(rows: list[EndingRow]) -> Table:
     headers = ["Method", "trials"] + used
     body = [[r.method.label, str(r.trials)] + [_ending_cell(*r.counts.get(e, (0, 0))) for e in used] for r in rows]
     notes = ["Each cell: episodes that ended this way (of them, failures in brackets). A failure that ended "
-             "before its step budget is one the policy gave up on: SEAL verifies actions, not the policy's "
-             "own judgement of progress."] + [f"{e}: {_ENDING_NOTES[e]}." for e in used if e in _ENDING_NOTES]
+             "before its step budget is one the policy gave up on; the next table says which of those claims "
+             "a verifier caught."] + [f"{e}: {_ENDING_NOTES[e]}." for e in used if e in _ENDING_NOTES]
     return Table("How episodes ended", headers, body, set(), notes, left=1)
 
 
@@ -403,6 +403,59 @@ def ending_csv(rows: list[EndingRow]) -> str:
     return to_csv(["method", "config_hash", "trials", "ended_by", "episodes", "failed"],
                   [[r.method.label, r.method.config_hash, r.trials, e, *n] for r in rows for e, n in r.counts.items()
                    if n[0]])
+
+
+@dataclass
+class CompletionRow:
+    """What came of one method configuration's claims that the task was done.
+
+    The goal is checked after every commit and ends the episode when it holds, so whenever a policy
+    writes that the task is done, it is not: every such claim is false. Without a check, an episode
+    ends at its first claim (``claimed`` is what the claims would cost); a method that verifies them
+    sends the policy back on a refusal, and loses only the episodes it let end (``ended``)."""
+
+    method: MethodInfo
+    trials: int
+    claimed: int  # episodes with at least one false claim of completion
+    refused: int  # claims the verifier refused, summed over episodes
+    ended: int  # episodes that ended on a false claim (accepted, or the verifier could not tell)
+    rescued: int  # episodes with a refused claim that went on to succeed
+
+
+def completion_rows(data: ReportData) -> list[CompletionRow]:
+    out = []
+    for m in data.methods:
+        rows = [r for r in data.rows if r.config_hash == m.config_hash]
+        ended = [not succeeded(r) and data.ended_by(r) == "policy_finished" for r in rows]
+        out.append(CompletionRow(
+            m, len(rows),
+            claimed=sum(e or r.done_refusals > 0 for r, e in zip(rows, ended)),
+            refused=sum(r.done_refusals for r in rows),
+            ended=sum(ended),
+            rescued=sum(r.done_refusals > 0 and succeeded(r) for r in rows)))
+    return out
+
+
+def completion_display(rows: list[CompletionRow]) -> Table:
+    def share(n: int, of: int) -> str:
+        return f"{n} ({100 * n / of:.0f}%)" if of else "0"
+
+    headers = ["Method", "trials", "episodes with a false claim", "claims refused", "ended on a false claim",
+               "refused, then solved"]
+    body = [[r.method.label, str(r.trials), share(r.claimed, r.trials), str(r.refused), share(r.ended, r.trials),
+             str(r.rescued)] for r in rows]
+    notes = ["The goal is checked after every commit and ends the episode when it holds, so a policy that "
+             "writes that the task is done is always wrong. Without a check, each episode with a false claim "
+             "ends at its first one, failed; a method that verifies claims sends the policy back on a refusal "
+             "and loses only the episodes that ended on a claim it accepted or could not judge."]
+    return Table("Declared completions (the policy wrote that the task is done)", headers, body, set(), notes, left=1)
+
+
+def completion_csv(rows: list[CompletionRow]) -> str:
+    return to_csv(["method", "config_hash", "trials", "episodes_with_false_claim", "claims_refused",
+                   "ended_on_false_claim", "refused_then_solved"],
+                  [[r.method.label, r.method.config_hash, r.trials, r.claimed, r.refused, r.ended, r.rescued]
+                   for r in rows])
 
 
 # ---- error trials ------------------------------------------------------------------------------
