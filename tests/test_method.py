@@ -196,7 +196,7 @@ def test_registries_name_the_valid_choices():
     (["run", "--method", "value"], "needs a trained V-GPS checkpoint"),
     (["eval", "--db", "{db}", "--tasks", "0,x"], "--tasks must be comma-separated task ids"),
     (["eval", "--db", "{db}", "--tasks", "0,10"], "unknown task id 10"),
-    (["eval", "--db", "{db}", "--methods", "seal:k=x"], "k='x' is not a int"),
+    (["eval", "--db", "{db}", "--methods", "seal:k=x"], "k='x' must be an integer (its default: k=10)"),
     (["eval", "--db", "{db}", "--methods", "seal:kk=2"], "bad method option 'kk=2'"),
     (["eval", "--db", "{db}", "--methods", "seal:mismatch=1/2"], "three numbers"),
     (["eval", "--db", "{db}", "--methods", "vgps"], "unknown method 'vgps'; valid: base, random, value, seal"),

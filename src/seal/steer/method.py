@@ -333,15 +333,19 @@ def convert(key: str, value: str):
     if setting.parse is not None:
         return setting.parse(value)
     current = setting.default
-    try:
-        if isinstance(current, bool):
-            return value.lower() in ("1", "true", "yes")
-        if isinstance(current, int):
-            return int(value)
-        if isinstance(current, float):
-            return float(value)
-    except ValueError:
-        raise InvalidInput(f"method option {key}={value!r} is not a {type(current).__name__}") from None
+    if isinstance(current, bool):
+        flag = {"1": True, "true": True, "yes": True, "0": False, "false": False, "no": False}.get(value.lower())
+        if flag is None:  # a typo must not silently read as False
+            raise InvalidInput(f"method option {key}={value!r} must be true or false (also 1/0, yes/no)")
+        return flag
+    kinds = ((int, "an integer"), (float, "a number"))
+    for kind, what in kinds:
+        if isinstance(current, kind):
+            try:
+                return kind(value)
+            except ValueError:
+                raise InvalidInput(f"method option {key}={value!r} must be {what} "
+                                   f"(its default: {key}={current})") from None
     return value
 
 
