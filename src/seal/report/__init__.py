@@ -38,7 +38,7 @@ def write_report(db: str | Path, out_dir: str | Path, *, runs_dir: str | Path | 
     ``link`` to them relatively, or ``none``. ``paper_training``: the paper's training set whose
     numbers go beside ours. ``progress(done, total)`` is called as episode pages are written.
     """
-    from seal.report import html, lift, paper_layout, plots, tables
+    from seal.report import causes, html, lift, paper_layout, plots, tables
 
     if media not in html.MEDIA_MODES:
         raise InvalidInput(f"unknown media mode {media!r}; valid: {', '.join(html.MEDIA_MODES)}")
@@ -57,6 +57,7 @@ def write_report(db: str | Path, out_dir: str | Path, *, runs_dir: str | Path | 
     alignment = tables.alignment_rows(data)
     endings = tables.ending_rows(data)
     completions = tables.completion_rows(data)
+    failures = causes.cause_rows(data)
     layouts = paper_layout.layout_sections(data, paper, paper_training)
     lifts = lift.lift_rows([lay for _, group in layouts for lay in group])
     shares = lift.share_rows(data)
@@ -74,6 +75,7 @@ def write_report(db: str | Path, out_dir: str | Path, *, runs_dir: str | Path | 
     csvs.append(_write(out / "csv" / "alignment.csv", tables.alignment_csv(alignment)))
     csvs.append(_write(out / "csv" / "endings.csv", tables.ending_csv(endings)))
     csvs.append(_write(out / "csv" / "completions.csv", tables.completion_csv(completions)))
+    csvs.append(_write(out / "csv" / "failure_causes.csv", causes.cause_csv(failures)))
     csvs.append(_write(out / "csv" / "errors.csv", tables.error_csv(data)))
     csvs.append(_write(out / "csv" / "verifier_errors.csv", tables.verifier_csv(data)))
 
@@ -86,6 +88,7 @@ def write_report(db: str | Path, out_dir: str | Path, *, runs_dir: str | Path | 
                 ("Lift", [lift.lift_display(lifts), lift.share_display(shares)]),
                 ("Alignment", [tables.alignment_display(alignment)]),
                 ("Endings", [tables.ending_display(endings), tables.completion_display(completions)]),
+                ("Failures", [causes.cause_display(failures)]),
                 ("Runtime", [tables.runtime_display(runtime)]),
                 ("Errors", [tables.error_display(data), tables.verifier_display(data)])]
     md = _write(out / "report.md", _markdown(data, sections, plot_paths, out))

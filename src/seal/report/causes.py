@@ -1,0 +1,156 @@
+"""Why episodes failed: one cause per failed trial, from what the trial stored and its trace.
+
+The generalization tables must say *why* SEAL's lift is larger or smaller out of distribution: did
+the policy misread the instruction, did its actions miss plans it read right (an unseen view), or
+did the verifier let a miss through? Each failure gets the first cause that applies, in the order a
+failure propagates through the Hypothesize-Predict-Verify loop:
+
+1. ``misread``: the plan the policy wrote does not lead to the task's goal. The plan is grounded
+   with the oracle's own parser against the task's objects and goal regions (no simulator needed),
+   and every goal atom must be among what its sub-plans achieve. Tasks whose own scripted plan the
+   parser cannot ground to the goal are not judged (some LIBERO-90 scenes with two alike objects).
+2. ``verifier passed a miss``: a commit the verifier accepted whose sub-plan did not hold by
+   simulator truth (the commit's alignment audit, in the trace).
+3. ``false claim of completion``: the episode ended on the policy's word that the task was done.
+4. ``no candidate passed``: some round had no candidate the verifier accepted (a fallback).
+5. ``out of steps``: the plan was right and nothing above happened; the actions were too slow or
+   too far off to finish in the step budget.
+6. ``crashed``: an error trial.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from functools import cache
+
+from seal.errors import InvalidInput
+from seal.eval.store import TrialRow
+from seal.report.data import MethodInfo, ReportData, succeeded
+from seal.report.tables import Table, to_csv
+
+CAUSES = ("misread", "verifier passed a miss", "false claim of completion", "no candidate passed", "out of steps",
+          "crashed")
+
+
+@cache
+def _goal_check(suite: str, task: int):
+    """(goal atoms, names to ground against) of a task, or None if the parser cannot judge its plans."""
+    from seal.policies.expert.plan import bddl_names, plan_task
+    from seal.sim.suites import get_task
+
+    try:
+        spec = get_task(suite, task)
+    except InvalidInput:
+        return None
+    goal = frozenset(str(a) for a in spec.goal_atoms())
+    # the goal's regions (basket_1_contain_region, ...) are sites of the objects' models, not BDDL names
+    names = sorted(set(bddl_names(spec.bddl_path.read_text())) | {x for a in spec.goal_atoms() for x in a.args})
+    if not goal <= _achieved([s.text for s in plan_task(spec)], names):
+        return None
+    return goal, names
+
+
+def _achieved(plans: list[str], names: list[str]) -> set[str]:
+    from seal.verify.oracle import ground
+
+    return {str(a) for i, p in enumerate(plans) for a in ground(p, tuple(plans), names, i).atoms}
+
+
+def plan_reads_goal(suite: str, task: int, plans: list[str]) -> bool | None:
+    """Does a written plan lead to the task's goal? None: no plan, or a task the parser cannot judge."""
+    check = _goal_check(suite, task)
+    if check is None or not plans:
+        return None
+    goal, names = check
+    return goal <= _achieved(list(plans), names)
+
+
+def _verifier_passed_a_miss(data: ReportData, row: TrialRow) -> bool | None:
+    """Did the verifier accept a commit whose sub-plan did not hold? None: no trace on disk."""
+    trace = data.resolve(row.trace_path)
+    if trace is None:
+        return None
+    with open(trace) as f:
+        for line in f:
+            if '"commit"' not in line:
+                continue
+            try:
+                event = json.loads(line)
+            except ValueError:  # a line cut off by a killed run
+                continue
+            verdict = event.get("verdict") or {}
+            if event.get("event") == "commit" and verdict.get("success") is True and event.get("aligned") is False:
+                return True
+    return False
+
+
+def cause_of(data: ReportData, row: TrialRow, verifies: bool) -> tuple[str, bool]:
+    """The cause of one failed trial, and whether its trace was missing (the verifier check skipped).
+    ``verifies``: the trial's method asks a verifier (SEAL), so its commits are read for misses."""
+    if row.status == "error":
+        return "crashed", False
+    if plan_reads_goal(row.suite, row.task, row.subplans) is False:
+        return "misread", False
+    missed = _verifier_passed_a_miss(data, row) if verifies else False
+    if missed:
+        return "verifier passed a miss", False
+    if data.ended_by(row) == "policy_finished":
+        return "false claim of completion", missed is None
+    if row.fallbacks > 0:
+        return "no candidate passed", missed is None
+    return "out of steps", missed is None
+
+
+@dataclass
+class CauseRow:
+    suite: str
+    method: MethodInfo
+    trials: int
+    failures: int
+    counts: dict  # cause -> failed trials
+    no_trace: int  # failures whose trace was not on disk: a verifier's misses could not be counted
+
+
+def cause_rows(data: ReportData) -> list[CauseRow]:
+    out = []
+    for suite in data.suites:
+        for m in data.methods_in(suite):
+            rows = [r for r in data.rows if r.suite == suite and r.config_hash == m.config_hash]
+            counts = dict.fromkeys(CAUSES, 0)
+            no_trace = 0
+            failed = [r for r in rows if not succeeded(r)]
+            for r in failed:
+                cause, missing = cause_of(data, r, verifies=m.method == "seal")
+                counts[cause] += 1
+                no_trace += missing
+            out.append(CauseRow(suite, m, len(rows), len(failed), counts, no_trace))
+    return out
+
+
+def cause_display(rows: list[CauseRow]) -> Table:
+    used = [c for c in CAUSES if any(r.counts[c] for r in rows)]
+    headers = ["Suite", "Method", "trials", "failures"] + used
+
+    def cell(n: int, of: int) -> str:
+        return f"{n} ({100 * n / of:.0f}%)" if n else "0"
+
+    body = [[r.suite, r.method.label, str(r.trials), str(r.failures)] + [cell(r.counts[c], r.failures) for c in used]
+            for r in rows]
+    notes = ["Each failed trial counts once, under the first cause that applies: misread (the written plan does not "
+             "lead to the goal, by the oracle's parser), verifier passed a miss (a commit it accepted failed its "
+             "sub-plan by simulator truth), false claim of completion, no candidate passed (a round fell back), out "
+             "of steps (a right plan the actions did not finish), crashed. Shares are of the failures. Out of "
+             "distribution, a misread points at the language, out of steps at the actions (unseen views), a "
+             "verifier's pass of a miss at the verifier."]
+    missing = sum(r.no_trace for r in rows)
+    if missing:
+        notes.append(f"{missing} failure(s) had no trace on disk: a verifier's pass of a miss could not be seen there.")
+    return Table("Why episodes failed", headers, body, set(), notes, left=2)
+
+
+def cause_csv(rows: list[CauseRow]) -> str:
+    return to_csv(["suite", "method", "config_hash", "trials", "failures", *[c.replace(" ", "_") for c in CAUSES],
+                   "failures_without_trace"],
+                  [[r.suite, r.method.label, r.method.config_hash, r.trials, r.failures,
+                    *[r.counts[c] for c in CAUSES], r.no_trace] for r in rows])

@@ -1,0 +1,75 @@
+"""`seal report`'s "Why episodes failed": one cause per failed trial, from the stored row and its trace."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+from seal.eval.store import ResultStore, TrialRow
+from seal.eval.trials import MethodSpec
+from seal.report import write_report
+from seal.report.causes import plan_reads_goal
+
+BASE, SEAL = MethodSpec(method="base"), MethodSpec(k=10)
+# LIBERO-10 task 0: put both the alphabet soup and the tomato sauce in the basket
+RIGHT = ["pick up the alphabet soup", "place it in the basket", "pick up the tomato sauce", "place it in the basket"]
+WRONG = ["pick up the butter", "place it in the basket", "pick up the tomato sauce", "place it in the basket"]
+
+
+def test_a_plan_is_read_against_the_goal():
+    assert plan_reads_goal("libero_10", 0, RIGHT) is True
+    assert plan_reads_goal("libero_10", 0, WRONG) is False
+    assert plan_reads_goal("libero_10", 0, RIGHT[:2]) is False  # half the task
+    # the rephrased suite's goal is the same; the plan is read against objects, not wording
+    assert plan_reads_goal("lang_rephrase", 0, RIGHT) is True
+    assert plan_reads_goal("libero_10", 0, []) is None  # a policy that writes no plan (the twin)
+    # two alike butters: the parser cannot tell which one its own scripted plan means, so it judges none
+    assert plan_reads_goal("libero_90", 3, ["pick up the butter", "place it in the top drawer"]) is None
+
+
+def _trace(path, commits):
+    path.parent.mkdir(parents=True)
+    events = [{"event": "commit", "slot": 0, "verdict": {"success": ok}, "aligned": aligned} for ok, aligned in commits]
+    path.write_text("".join(json.dumps(e) + "\n" for e in events) + '{"event": "commit", "verdict"')  # a cut-off line
+
+
+def test_each_failure_gets_its_first_cause(tmp_path):
+    db = tmp_path / "r.db"
+    trials = [  # (method, success, plans, ended_by, fallbacks, commits in the trace or None, status)
+        (BASE, True, RIGHT, "goal_holds", 0, None, "ok"),
+        (BASE, False, RIGHT, "step_limit", 0, None, "ok"),  # out of steps (no trace needed: no verifier)
+        (BASE, False, WRONG, "step_limit", 0, None, "ok"),  # misread
+        (BASE, False, RIGHT, "policy_finished", 0, None, "ok"),  # false claim
+        (SEAL, False, RIGHT, "step_limit", 1, [(True, True), (True, False)], "ok"),  # verifier passed a miss
+        (SEAL, False, WRONG, "step_limit", 0, [(True, False)], "ok"),  # misread comes first
+        (SEAL, False, RIGHT, "step_limit", 2, [(True, True), (False, False)], "ok"),  # no candidate passed
+        (SEAL, False, RIGHT, "step_limit", 0, None, "error"),  # crashed
+        (SEAL, False, RIGHT, "step_limit", 0, None, "ok"),  # out of steps, its trace not on disk
+        (SEAL, True, RIGHT, "goal_holds", 0, [(True, False)], "ok"),  # a success is no failure
+    ]
+    with ResultStore(db) as store:
+        for spec in (BASE, SEAL):
+            store.register_method(spec.config_hash, spec.label, spec.canonical())
+        for t, (spec, ok, plans, ended, fallbacks, commits, status) in enumerate(trials):
+            trace = ""
+            if commits is not None:
+                path = tmp_path / "runs" / f"t{t}" / "trace.jsonl"
+                _trace(path, commits)
+                trace = str(path)
+            store.add(TrialRow(method=spec.label, config_hash=spec.config_hash, suite="libero_10", task=0, trial=t,
+                               init_index=t, seed=t, success=ok, steps=100, wall_s=1.0, subplans=plans,
+                               ended_by=ended, fallbacks=fallbacks, trace_path=trace, status=status,
+                               error="boom" if status == "error" else ""))
+    report = write_report(db, tmp_path / "out", episodes=False)
+    path = next(p for p in report.csv if p.name == "failure_causes.csv")
+    rows = {r["config_hash"]: r for r in csv.DictReader(path.read_text().splitlines())}
+    base, seal = rows[BASE.config_hash], rows[SEAL.config_hash]
+    counts = lambda r: {k: int(v) for k, v in r.items() if k not in ("suite", "method", "config_hash")}  # noqa: E731
+    assert counts(base) == {"trials": 4, "failures": 3, "misread": 1, "verifier_passed_a_miss": 0,
+                            "false_claim_of_completion": 1, "no_candidate_passed": 0, "out_of_steps": 1,
+                            "crashed": 0, "failures_without_trace": 0}
+    assert counts(seal) == {"trials": 6, "failures": 5, "misread": 1, "verifier_passed_a_miss": 1,
+                            "false_claim_of_completion": 0, "no_candidate_passed": 1, "out_of_steps": 1,
+                            "crashed": 1, "failures_without_trace": 1}
+    md = report.markdown.read_text()
+    assert "### Why episodes failed" in md and "had no trace on disk" in md
