@@ -349,10 +349,11 @@ def test_a_repeated_subplan_is_judged_where_the_policy_stands_in_its_plan(tmp_pa
 
 class DeclaresDoneEarly:
     """The scripted expert, but after its first sub-plan it writes that the task is complete (the
-    learned VLA does this: a hallucinated completion)."""
+    learned VLA does this: a hallucinated completion). ``at_once``: it claims completion in its
+    very first reasoning, with nothing done (the VLA writes that too), then reasons as the expert."""
 
-    def __init__(self, expert):
-        self.expert, self.thinks, self.calls = expert, expert.thinks, 0
+    def __init__(self, expert, at_once: bool = False):
+        self.expert, self.thinks, self.calls, self.at_once = expert, expert.thinks, 0, at_once
 
     def __getattr__(self, name):
         return getattr(self.expert, name)
@@ -362,6 +363,8 @@ class DeclaresDoneEarly:
 
         self.calls += 1
         own = self.expert.reason(obs)
+        if self.at_once:
+            return Reasoning(plans=own.plans, done=(), now="") if self.calls == 1 else own
         return own if self.calls == 1 else Reasoning(plans=own.plans, done=own.plans, now="")
 
 
@@ -403,6 +406,14 @@ def test_a_declared_completion_is_verified(pool, tmp_path):
     assert "is false" in checks[0]["verdict"]["rationale"]  # the task's goal atoms, checked by the oracle
     assert result.ended_by != "policy_finished"
     # taken back to its last sub-plan, the expert finishes the task the false completion left undone
+    assert result.success and result.ended_by == "goal_holds"
+
+    # completion claimed with nothing done: refused too, and the policy starts at its first sub-plan
+    with Trace(tmp_path / "at_once.jsonl") as trace:
+        result = Steerer(pool, DeclaresDoneEarly(expert_policy(BOOK, FailureKnobs(), seed=0), at_once=True),
+                         OracleVerifier(), config, trace=trace).run(0)
+    checks = [e for e in read_trace(tmp_path / "at_once.jsonl") if e["event"] == "done_check"]
+    assert result.done_checks[0] is False and checks[0]["step"] == 0 and checks[0]["back_to"] == result.subplans[0]
     assert result.success and result.ended_by == "goal_holds"
 
     for verifier, done_check, checks_made in ((AlwaysPasses(), "verify", [True]), (OracleVerifier(), "trust", [])):

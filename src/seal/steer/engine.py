@@ -169,11 +169,12 @@ class Steerer:
         the instruction holds in the committed state (``done_check="verify"``). None: the episode
         ends (the verifier agrees, cannot tell, or the method trusts the policy). Otherwise the
         reasoning the policy goes back to: its last claimed sub-plan, undone, the likeliest to have
-        slipped (an object held over its target, a mug short of the microwave)."""
+        slipped (an object held over its target, a mug short of the microwave); its first sub-plan
+        when it claims the task complete with nothing done (the learned VLA writes that too)."""
         if background is None or not self.selection.verifies or self.config.done_check != "verify":
             return None
-        if not reasoning.done:
-            return None  # it claims nothing done: there is no sub-plan to go back to
+        if not reasoning.done and not reasoning.plans:
+            return None  # no plan at all: there is no sub-plan to go back to
         instruction = self.pool.task.instruction
         request = VerifyRequest(subplan=instruction, instruction=instruction, plans=reasoning.plans,
                                 first_agent=first_agent, task=self.pool.task.key,
@@ -189,7 +190,10 @@ class Steerer:
         result.timing["verify_wait_s"] += time.perf_counter() - t0
         refused = verdict.success is False  # unknown: the verifier cannot overrule the policy without evidence
         result.done_checks.append(not refused)
-        reopened = Reasoning(reasoning.plans, reasoning.done[:-1], reasoning.done[-1]) if refused else None
+        reopened = None
+        if refused:
+            reopened = (Reasoning(reasoning.plans, reasoning.done[:-1], reasoning.done[-1]) if reasoning.done
+                        else Reasoning(reasoning.plans, (), reasoning.plans[0]))
         self.emit("done_check", step=step, reasoning=reasoning.text(), verdict=_verdict_dict(verdict),
                   refused=refused, **({"back_to": reopened.now} if reopened else {}))
         return reopened
