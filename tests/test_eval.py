@@ -84,7 +84,7 @@ def test_parse_methods_and_config_hashes():
         parse_methods("value")
     with pytest.raises(InvalidInput, match="name=value"):
         parse_methods("seal:kk=3")
-    with pytest.raises(InvalidInput, match="not a int"):
+    with pytest.raises(InvalidInput, match="must be an integer"):
         parse_methods("seal:k=many")
     with pytest.raises(InvalidInput, match="valid: oracle, openai, gemini"):
         parse_methods("seal", verifier="gpt")
