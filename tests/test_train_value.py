@@ -167,3 +167,18 @@ def test_value_function_from_a_64px_dataset_scores_the_policy_view(tmp_path):
     assert scoring_view(scorer, obs64, render) is obs64 and asked == []  # the policy's render serves
     obs224 = Observation(state=np.zeros(8, np.float32), prompt="p", agent=np.zeros((224, 224, 3), np.uint8))
     assert scoring_view(scorer, obs224, render).agent.shape == (64, 64, 3) and asked == [64]
+
+
+@pytest.mark.parametrize("field, value, message", [
+    ("steps", -1, "steps must be an integer >= 0"),
+    ("batch_size", 0, "batch_size must be an integer >= 1"),
+    ("lr", float("nan"), "lr must be a finite number > 0"),
+    ("gamma", 1.0, r"gamma must be in \[0, 1\)"),
+    ("expectile", 0.0, r"expectile must be in \(0, 1\)"),
+    ("polyak", 0.0, r"polyak must be in \(0, 1\]"),
+    ("hidden", 2.5, "hidden must be an integer >= 1"),
+])
+def test_iql_config_refuses_bad_values_with_the_field_named(field, value, message):
+    with pytest.raises(InvalidInput, match=message):
+        IQLConfig(**{field: value})
+    IQLConfig()  # the defaults pass

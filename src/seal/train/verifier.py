@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from seal.errors import InvalidInput
+from seal.train.fields import check_integer, check_real
 from seal.verify import dataset as ds
 from seal.verify.dataset import binary_metrics, init_key_of
 from seal.verify.learned import (ARCH_KEYS, CHECKPOINT, WordVocab, build_net, checkpoint_dir, context_of, default_config,
@@ -81,41 +82,29 @@ class VerifierTrainConfig:
     def __post_init__(self) -> None:
         """Refuse settings that would fail minutes later (after the images are decoded) or train
         something other than asked; every message names the field, the value and what is valid."""
-
-        def integer(name: str, low: int, high: int | None = None, what: str = "") -> None:
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low or (high is not None
-                                                                                          and v > high):
-                valid = f">= {low}" if high is None else f"in {low}..{high}"
-                raise InvalidInput(f"{name} must be an integer {valid}{what}, got {v!r}")
-
-        def real(name: str, ok, valid: str) -> None:
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float, np.number)) or not ok(float(v)):
-                raise InvalidInput(f"{name} must be {valid}, got {v!r}")
-
-        integer("steps", 0, what=" (0: the initial weights)")
-        integer("batch_size", 1)
-        real("lr", lambda v: 0 < v < math.inf, "a finite number > 0")
-        real("weight_decay", lambda v: 0 <= v < math.inf, "a finite number >= 0")
-        integer("image_size", 8, ds.IMAGE_SIZE, f" (the cases are {ds.IMAGE_SIZE} px)")
+        check_integer(self, "steps", 0, what=" (0: the initial weights)")
+        check_integer(self, "batch_size", 1)
+        check_real(self, "lr", lambda v: v > 0, "a finite number > 0")
+        check_real(self, "weight_decay", lambda v: v >= 0, "a finite number >= 0")
+        check_integer(self, "image_size", 8, ds.IMAGE_SIZE, f" (the cases are {ds.IMAGE_SIZE} px)")
         if isinstance(self.holdout_tasks, str) or not all(isinstance(t, str) for t in self.holdout_tasks):
             raise InvalidInput(f"holdout_tasks must be a tuple of task keys like 'libero_10/1', got "
                                f"{self.holdout_tasks!r}")
-        real("holdout_inits", lambda v: 0 <= v < 1, "in [0, 1) (a fraction of each task's init states)")
-        integer("seed", 0)
+        check_real(self, "holdout_inits", lambda v: 0 <= v < 1,
+                   "in [0, 1) (a fraction of each task's init states)")
+        check_integer(self, "seed", 0)
         if self.train_seed is not None:
-            integer("train_seed", 0, what=" or None")
-        integer("shift", 0, self.image_size - 1, " (pixels at image_size)")
-        real("jitter", lambda v: 0 <= v < 1,
-             "in [0, 1) (brightness/contrast factors in [1 - jitter, 1 + jitter]; 0: off)")
+            check_integer(self, "train_seed", 0, what=" or None")
+        check_integer(self, "shift", 0, self.image_size - 1, " (pixels at image_size)")
+        check_real(self, "jitter", lambda v: 0 <= v < 1,
+                   "in [0, 1) (brightness/contrast factors in [1 - jitter, 1 + jitter]; 0: off)")
         if self.lr_schedule not in ("constant", "cosine"):
             raise InvalidInput(f"lr schedule {self.lr_schedule!r} is not one of: constant, cosine")
         if isinstance(self.ema, bool) or not isinstance(self.ema, (int, float, np.number)) or not 0 <= self.ema < 1:
             raise InvalidInput(f"ema decay must be in [0, 1) (0: off; e.g. 0.999), got {self.ema!r}")
-        integer("log_every", 1)
-        integer("eval_every", 1)
-        real("save_every_s", lambda v: v >= 0, "a number of seconds >= 0")
+        check_integer(self, "log_every", 1)
+        check_integer(self, "eval_every", 1)
+        check_real(self, "save_every_s", lambda v: v >= 0, "a number of seconds >= 0")
 
     def identity(self) -> dict:
         """What a resumed run must share with the run it continues."""

@@ -31,6 +31,7 @@ import numpy as np
 
 from seal.checkpoint import atomic_write
 from seal.errors import InvalidInput
+from seal.train.fields import check_integer, check_real
 from seal.train.transitions import Transitions
 from seal.value.vgps import ValueNets, goal_batch, save_scorer
 
@@ -61,6 +62,16 @@ class IQLConfig:
     seed: int = 0
     save_every: int = 500
     log_every: int = 50
+
+    def __post_init__(self) -> None:
+        """Refuse a value that would fail (or silently train something else) after the data loads."""
+        for name, low in (("steps", 0), ("batch_size", 1), ("hidden", 1), ("goal_dim", 1), ("shift", 0),
+                          ("seed", 0), ("save_every", 1), ("log_every", 1)):
+            check_integer(self, name, low)
+        check_real(self, "lr", lambda v: v > 0, "a finite number > 0")
+        check_real(self, "gamma", lambda v: 0 <= v < 1, "in [0, 1) (the discount per 5-step chunk)")
+        check_real(self, "expectile", lambda v: 0 < v < 1, "in (0, 1) (IQL's tau; 0.5 is plain regression)")
+        check_real(self, "polyak", lambda v: 0 < v <= 1, "in (0, 1] (the target network's update rate)")
 
 
 def _random_shift(images: torch.Tensor, pad: int, gen: torch.Generator) -> torch.Tensor:
