@@ -490,7 +490,7 @@ def test_fine_tuning_starts_from_the_checkpoint_keeps_its_vocabulary_and_resumes
     summary = train_verifier(data, tmp_path / "ft", cfg, init_from=base)
     manifest = json.loads((tmp_path / "ft" / "manifest.json").read_text())
     assert manifest["case_policies"]["init_from"]["path"] == str(base)
-    assert manifest["case_policies"]["init_from"]["unknown_words"] == []  # same cases, same words
+    assert manifest["case_policies"]["init_from"]["added_words"] == []  # same cases, same words
     assert summary["heldout_tasks"]["accuracy"] >= 0.95  # 4 small steps keep what the base learned
     # resuming the fine-tune continues it; resuming it from scratch (or another start) is refused
     train_verifier(data, tmp_path / "half", VerifierTrainConfig(**{**cfg.__dict__, "steps": 2}), init_from=base)
@@ -515,6 +515,31 @@ def test_fine_tuning_starts_from_the_checkpoint_keeps_its_vocabulary_and_resumes
     from seal.verify.learned import CHECKPOINT
     manifest = json.loads((tmp_path / "from_shipped" / "manifest.json").read_text())
     assert manifest["case_policies"]["init_from"]["digest"] == CHECKPOINT.digest(DEFAULT_CHECKPOINT)
+
+
+def test_a_fine_tune_learns_words_its_start_never_saw(run):
+    """The vocabulary grows by the new words, each starting as the unknown word's embedding: the grown
+    network judges every input exactly as the checkpoint did until training moves the new words."""
+    from seal.train.verifier import grow_vocabulary
+    from seal.verify.learned import prepare_images
+
+    net, config, vocab = load_checkpoint(run[0])
+    texts = ["put both the zebra and the pots in the cabinet", vocab.tokens[2]]
+    grown, grown_config, grown_vocab, added = grow_vocabulary(net, config, vocab, texts)
+    assert added and set(added) <= {"put", "both", "zebra", "and", "pots", "in", "cabinet", "the"}
+    assert added == sorted(added) and grown_vocab.tokens == vocab.tokens + added == grown_config["vocab"]
+    assert grown_vocab.encode(["zebra"], 4)[0, 0] != 1 and vocab.encode(["zebra"], 4)[0, 0] == 1  # 1: unknown
+    rng = np.random.default_rng(0)
+    size = int(config["image_size"])
+    images = [prepare_images(rng.integers(0, 256, (2, size, size, 3), dtype=np.uint8), size) for _ in range(3)]
+    max_words = int(config["max_words"])
+    with torch.no_grad():
+        before = net(*images, torch.from_numpy(vocab.encode(texts, max_words)),
+                     torch.from_numpy(vocab.encode(["", ""], max_words)))
+        after = grown(*images, torch.from_numpy(grown_vocab.encode(texts, max_words)),
+                      torch.from_numpy(grown_vocab.encode(["", ""], max_words)))
+    assert torch.equal(before, after)
+    assert grow_vocabulary(net, config, vocab, [vocab.tokens[2]])[3] == []  # nothing new: the same objects
 
 
 def test_averaging_two_seeds_gives_one_checkpoint_of_the_mean_weights(run, data, tmp_path, capsys):

@@ -409,14 +409,33 @@ def _init_checkpoint(init_from: str | Path, cfg: VerifierTrainConfig):
     return net, config, vocab, provenance
 
 
+def grow_vocabulary(net, config: dict, vocab: WordVocab, texts) -> tuple[object, dict, WordVocab, list[str]]:
+    """The network, config and vocabulary of a checkpoint with the words of ``texts`` it lacks added
+    (sorted, at the end). Each new word's embedding starts as a copy of the unknown word's, so the
+    grown network gives every input exactly the probability the checkpoint gave it (the new words
+    read as unknown until training moves them apart). Returns the added words too."""
+    added = sorted({w for t in texts for w in words(t)} - set(vocab.index))
+    if not added:
+        return net, config, vocab, []
+    grown = WordVocab(vocab.tokens + added)
+    config = {**config, "vocab": grown.tokens}
+    weights = net.state_dict()
+    table = weights["embed.weight"]
+    weights["embed.weight"] = torch.cat([table, table[1:2].expand(len(added), -1)])  # row 1: the unknown word
+    net = build_net(config)
+    net.load_state_dict(weights)
+    return net, config, grown, added
+
+
 def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig, *, progress=None, threads: int | None = 1,
                    command: str = "", init_from: str | Path | None = None) -> dict:
     """Train (or continue training) into ``out``; returns the summary written to metrics.json.
 
     ``progress(stage, done, total, info)``: stage "load" then "train".
     ``init_from``: a verifier checkpoint to fine-tune (e.g. the shipped one on the steered policy's own
-    cases): its network, vocabulary and threshold are kept, so words its vocabulary lacks read as
-    unknown (counted in the summary's ``init_from.unknown_words``)."""
+    cases): its network and threshold are kept, and its vocabulary grows by the training cases' words
+    it lacks (`grow_vocabulary`; listed in the manifest's ``init_from.added_words``), so a fine-tune
+    learns the words its start never saw (task-level instructions: "both", "put", ...)."""
     # (the settings were checked when cfg was made: bad ones fail before the images are decoded)
     if threads:
         torch.set_num_threads(threads)
@@ -445,7 +464,8 @@ def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig,
             average, net = net, build_net(config)
             net.load_state_dict(state["raw"])
     elif init:
-        net, config, vocab = init[:3]
+        texts = [arrays.subplan[i] for i in train_idx] + [arrays.context[i] for i in train_idx]
+        net, config, vocab, _ = grow_vocabulary(*init[:3], texts)
         step, state = 0, None
         average = copy.deepcopy(net) if cfg.ema else None
     else:
@@ -464,10 +484,9 @@ def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig,
         raise InvalidInput(f"only {len(train_idx)} training case(s); collect more")
 
     sources = case_policies(datas, arrays, train_idx)
-    if init:
-        texts = {arrays.subplan[i] for i in train_idx} | {arrays.context[i] for i in train_idx}
-        unknown = sorted({w for t in texts for w in words(t) if w not in vocab.index})
-        sources["init_from"] = init[3] | {"unknown_words": unknown}
+    if init:  # the same list on a resumed run: what the training cases have that the start lacked
+        added = sorted(set(vocab.index) - set(init[2].index))
+        sources["init_from"] = init[3] | {"added_words": added}
 
     def summary(final: bool) -> dict:
         return {"step": step, "data": ",".join(map(str, datas)), "data_fingerprint": fingerprint,
