@@ -145,3 +145,18 @@ def test_demonstrations_replay_into_labelled_verification_cases(recorded, tmp_pa
         == [r["final_agent"] for r in grips]  # the same branches, pixel for pixel, without the recording's states
     with pytest.raises(InvalidInput, match="only-branches"):
         DemoCaseOptions(only_branches=True).check()
+
+    # task-level cases: the instruction at every sub-plan's end and the last frame, by the task's goal
+    summary = from_demos(recorded, tmp_path / "task", DemoCaseOptions(fractions=(0.5, 1.0), after=5, task_cases=True,
+                                                                        only_branches=True))
+    tasks = sorted(vds.read_cases(tmp_path / "task").to_pylist(), key=lambda r: r["steps"])
+    assert summary["replay_failed"] == [] and len(tasks) == len(meta["subplans"]) + 1
+    from seal.sim.suites import get_task
+
+    assert {r["kind"] for r in tasks} == {"task"}
+    assert {r["subplan"] for r in tasks} == {get_task("libero_10", 5).instruction}
+    # the book is not in the caddy when the pick ends, and it is at the last frame (once in, it stays)
+    labels = [r["label"] for r in tasks]
+    assert not labels[0] and labels[-1] and labels == sorted(labels)
+    assert [r["steps"] for r in tasks][:-1] == [int(f) for f in meta["critical_frames"]]
+    assert all(r["first_agent"] == tasks[0]["first_agent"] for r in tasks)  # the episode's first view

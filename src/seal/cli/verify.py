@@ -56,6 +56,9 @@ def add(sub) -> None:
     dem.add_argument("--grip-branch", action="store_true",
                      help="near misses: per sub-plan, one more replay from its start with the gripper held as it "
                      "began (a pick lifts an empty hand, a place never lets go), judged past the sub-plan's end")
+    dem.add_argument("--task-cases", action="store_true",
+                     help="task-level cases (the question SEAL asks when a policy says the task is done): the "
+                     "instruction judged at every sub-plan's end and at the last frame, by the task's goal")
     dem.add_argument("--only-branches", action="store_true",
                      help="write the branch cases alone, not the recording's own states (to add near misses to a "
                      "collection of the same demonstrations made without them)")
@@ -139,7 +142,8 @@ def _cmd_verify_from_demos(args) -> int:
         raise InvalidInput(f"--tasks must be comma-separated task ids, got {args.tasks!r}") from None
     opts = DemoCaseOptions(fractions=fractions, after=args.after, episodes_per_task=args.episodes_per_task,
                            branches=args.branches, branch_from=args.branch_from, branch_miss=args.branch_miss,
-                           grip_branch=args.grip_branch, only_branches=args.only_branches)
+                           grip_branch=args.grip_branch, only_branches=args.only_branches,
+                           task_cases=args.task_cases)
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn()) as bar:
         job = bar.add_task("replaying demonstrations", total=None)
 

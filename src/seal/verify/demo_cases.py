@@ -35,6 +35,13 @@ How a demonstration becomes cases (``seal verify from-demos``):
   can, or holds the box above the basket and never lets go. This branch replays a sub-plan from
   its start, up to ``after`` frames past its end, with every gripper command replaced by the
   sub-plan's first one (case ids end ``:g``).
+- Task-level cases (``task_cases``): when a policy writes that the task is done, SEAL asks whether
+  the instruction holds (``done_check``). A verifier learns to answer that only from task-level
+  cases, and SEAL rounds make few (a claim per episode at most). A demonstration gives one at
+  every sub-plan's end, where a policy is likeliest to claim too early (the soup in the basket,
+  the sauce not yet: a failure), and one at its last frame (a success); the oracle checks the
+  task's goal atoms (case ids ``...:task:f<frame>``, kind ``task``, the episode's first view as
+  "before", ``subplan_index`` 0, ``steps`` the frame).
 
 Rows have the columns of `seal.verify.dataset` with ``init_source="demo"``, ``init_index`` the
 dataset's episode index, ``init_seed`` its start seed, ``policy="scripted"``, ``knobs="demo"``,
@@ -70,6 +77,9 @@ class DemoCaseOptions:
     branch_miss: float = 0.05  # metres between where a branch's hand ends and where the demonstration's did
     grip_branch: bool = False  # one more branch per sub-plan: the gripper held as it began (module docstring)
     only_branches: bool = False  # write the branch cases alone (near misses for a collection made without them)
+    # task-level cases: "does the instruction hold?" at every sub-plan's end and the episode's last frame,
+    # as SEAL asks when a policy says the task is done (module docstring)
+    task_cases: bool = False
 
     def settings(self) -> dict:
         out = {"source": SOURCE, "fractions": list(self.fractions), "after": self.after}
@@ -79,6 +89,8 @@ class DemoCaseOptions:
             out["grip_branch"] = True
         if self.only_branches:
             out["only_branches"] = True
+        if self.task_cases:
+            out["task_cases"] = True
         return out
 
     def check(self) -> None:
@@ -89,8 +101,9 @@ class DemoCaseOptions:
         if self.branches < 0 or not 0.0 <= self.branch_from < 1.0 or not 0.0 < self.branch_miss <= 0.3:
             raise InvalidInput(f"--branches must be >= 0, --branch-from in [0, 1) and --branch-miss in (0, 0.3] metres; "
                                f"got {self.branches}, {self.branch_from}, {self.branch_miss}")
-        if self.only_branches and not (self.branches or self.grip_branch):
-            raise InvalidInput("--only-branches needs --branches N or --grip-branch (it writes their cases alone)")
+        if self.only_branches and not (self.branches or self.grip_branch or self.task_cases):
+            raise InvalidInput("--only-branches needs --branches N, --grip-branch or --task-cases (it writes their "
+                               "cases alone)")
 
 
 def branch_offsets(episode: int, segment: int, frames: int, opts: DemoCaseOptions) -> list[np.ndarray]:
@@ -156,6 +169,9 @@ def replay_cases(world, meta: dict, actions: np.ndarray, base: dict, opts: DemoC
     if opts.grip_branch:
         for i, (text, start, end) in enumerate(segments):
             grip_at.setdefault(start, []).append((i, text, min(end + opts.after, length)))
+    # task-level questions where a policy is likeliest to claim the task done: as each sub-plan ends
+    task_at = ({end for _, _, end in segments} | {length}) if opts.task_cases else set()
+    goal = tuple(str(a) for a in world.task.goal_atoms())
     first_views: dict[int, np.ndarray] = {}
     rows: list[dict] = []
 
@@ -173,11 +189,23 @@ def replay_cases(world, meta: dict, actions: np.ndarray, base: dict, opts: DemoC
             rows.append(ds.case_row(base, req, verdict, case_id=case_id, subplan_number=i + 1, round=0,
                                     candidate=slot, steps=steps, ended_by=SOURCE))
 
+    def judge_task(obs, t: int) -> None:
+        req = VerifyRequest(subplan=base["instruction"], instruction=base["instruction"], plans=plans,
+                            first_agent=first_views[0], final_agent=obs.agent, final_wrist=obs.wrist,
+                            task=base["task"], goal_atoms=goal)
+        req.scene = world.scene_state(list(goal))
+        verdict = oracle.judge(req)
+        rows.append(ds.case_row(base, req, verdict, case_id=f"{prefix}:task:f{t}", subplan_number=0, round=0,
+                                candidate=0, steps=t, ended_by=SOURCE))
+
     prefix = f"{base['task']}:{SOURCE}:{base['init_index']}"
     for t in range(length + 1):
-        obs = world.observe(images=True) if t in starts or t in wanted else None  # one render per frame
+        # one render per frame
+        obs = world.observe(images=True) if t in starts or t in wanted or t in task_at else None
         if t in starts:
             first_views[t] = obs.agent
+        if t in task_at:
+            judge_task(obs, t)
         for i, text, start, slot in wanted.get(t, ()):
             judge(obs, i, text, start, f"{prefix}:s{i + 1}:f{t}", slot, t - start)
         for i, text, start, stop in branch_at.get(t, ()):
