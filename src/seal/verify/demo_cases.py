@@ -175,28 +175,20 @@ def replay_cases(world, meta: dict, actions: np.ndarray, base: dict, opts: DemoC
     first_views: dict[int, np.ndarray] = {}
     rows: list[dict] = []
 
-    def judge(obs, i: int, text: str, start: int, case_id: str, slot: int, steps: int) -> None:
+    def judge(obs, i: int, text: str, start: int, case_id: str, slot: int, steps: int, goal_atoms=()) -> None:
+        """Label one end state; with ``goal_atoms``, a task-level case (``i`` -1: no sub-plan)."""
         nonlocal objects
         if objects is None:
             scene = world.scene_state()
             objects = sorted(set(scene.bodies) | set(scene.sites))
-        req = VerifyRequest(subplan=text, instruction=base["instruction"], plans=plans, index=i,
+        req = VerifyRequest(subplan=text, instruction=base["instruction"], plans=plans, index=None if i < 0 else i,
                             first_agent=first_views[start], final_agent=obs.agent, final_wrist=obs.wrist,
-                            task=base["task"])
+                            task=base["task"], goal_atoms=goal_atoms)
         req.scene = world.scene_state(oracle.atoms_needed(req, objects))
         verdict = oracle.judge(req)
         if verdict.success is not None:
             rows.append(ds.case_row(base, req, verdict, case_id=case_id, subplan_number=i + 1, round=0,
                                     candidate=slot, steps=steps, ended_by=SOURCE))
-
-    def judge_task(obs, t: int) -> None:
-        req = VerifyRequest(subplan=base["instruction"], instruction=base["instruction"], plans=plans,
-                            first_agent=first_views[0], final_agent=obs.agent, final_wrist=obs.wrist,
-                            task=base["task"], goal_atoms=goal)
-        req.scene = world.scene_state(list(goal))
-        verdict = oracle.judge(req)
-        rows.append(ds.case_row(base, req, verdict, case_id=f"{prefix}:task:f{t}", subplan_number=0, round=0,
-                                candidate=0, steps=t, ended_by=SOURCE))
 
     prefix = f"{base['task']}:{SOURCE}:{base['init_index']}"
     for t in range(length + 1):
@@ -205,7 +197,7 @@ def replay_cases(world, meta: dict, actions: np.ndarray, base: dict, opts: DemoC
         if t in starts:
             first_views[t] = obs.agent
         if t in task_at:
-            judge_task(obs, t)
+            judge(obs, -1, base["instruction"], 0, f"{prefix}:task:f{t}", 0, t, goal_atoms=goal)
         for i, text, start, slot in wanted.get(t, ()):
             judge(obs, i, text, start, f"{prefix}:s{i + 1}:f{t}", slot, t - start)
         for i, text, start, stop in branch_at.get(t, ()):
