@@ -107,6 +107,10 @@ def test_demonstrations_replay_into_labelled_verification_cases(recorded, tmp_pa
     assert (again["replayed"], again["already_done"]) == (0, 1)
     with pytest.raises(InvalidInput, match="fractions"):
         from_demos(recorded, tmp_path, DemoCaseOptions(fractions=(0.5,), after=5))
+    # a held-out set skips the episodes a training collection used (the fixture has one per task)
+    assert from_demos(recorded, tmp_path / "held", DemoCaseOptions(skip_per_task=1))["episodes"] == 0
+    with pytest.raises(InvalidInput, match="skip-episodes-per-task"):
+        from_demos(recorded, tmp_path / "held", DemoCaseOptions(skip_per_task=-1))
 
     # near misses: the same replay with two branches per sub-plan
     branched = tmp_path / "branched"

@@ -42,7 +42,11 @@ def add(sub) -> None:
                                 "sub-plan (the hard negatives: almost there), label by the oracle (training data only)")
     dem.add_argument("--dataset", required=True, help="a `seal demos record` dataset (sampled starts)")
     dem.add_argument("--tasks", default=None, help="comma-separated task ids (default: every task in the dataset)")
-    dem.add_argument("--episodes-per-task", type=COUNT, default=None, help="the first N episodes of each task")
+    dem.add_argument("--episodes-per-task", type=COUNT, default=None, help="the first N episodes of each task "
+                     "(after any skipped)")
+    dem.add_argument("--skip-episodes-per-task", type=int, default=0, help="skip each task's first N episodes: "
+                     "cases from demonstrations a training collection made with --episodes-per-task N did not use "
+                     "(a held-out set; default 0)")
     dem.add_argument("--fractions", default="0.3,0.6,0.8,0.9,1.0",
                      help="end states judged per sub-plan, as fractions of the way from its start to its end")
     dem.add_argument("--after", type=int, default=10, help="one more end state this many frames past the "
@@ -141,6 +145,7 @@ def _cmd_verify_from_demos(args) -> int:
     except ValueError:
         raise InvalidInput(f"--tasks must be comma-separated task ids, got {args.tasks!r}") from None
     opts = DemoCaseOptions(fractions=fractions, after=args.after, episodes_per_task=args.episodes_per_task,
+                           skip_per_task=args.skip_episodes_per_task,
                            branches=args.branches, branch_from=args.branch_from, branch_miss=args.branch_miss,
                            grip_branch=args.grip_branch, only_branches=args.only_branches,
                            task_cases=args.task_cases)

@@ -72,6 +72,9 @@ class DemoCaseOptions:
     fractions: tuple[float, ...] = (0.3, 0.6, 0.8, 0.9, 1.0)  # of the way from a sub-plan's start to its end
     after: int = 10  # one more end state this many frames past the sub-plan's end (0: none)
     episodes_per_task: int | None = None  # the first N episodes of each task (default: all)
+    # skip each task's first N episodes: a held-out set from demonstrations an earlier collection
+    # (made with episodes_per_task=N) already turned into training cases
+    skip_per_task: int = 0
     branches: int = 0  # near-miss branches per sub-plan (module docstring)
     branch_from: float = 0.5  # where a branch leaves the recording, as a fraction of the sub-plan
     branch_miss: float = 0.05  # metres between where a branch's hand ends and where the demonstration's did
@@ -98,6 +101,8 @@ class DemoCaseOptions:
             raise InvalidInput(f"--fractions must be numbers in (0, 1], got {list(self.fractions)}")
         if self.after < 0:
             raise InvalidInput(f"--after must be >= 0 frames, got {self.after}")
+        if self.skip_per_task < 0:
+            raise InvalidInput(f"--skip-episodes-per-task must be >= 0, got {self.skip_per_task}")
         if self.branches < 0 or not 0.0 <= self.branch_from < 1.0 or not 0.0 < self.branch_miss <= 0.3:
             raise InvalidInput(f"--branches must be >= 0, --branch-from in [0, 1) and --branch-miss in (0, 0.3] metres; "
                                f"got {self.branches}, {self.branch_from}, {self.branch_miss}")
@@ -247,7 +252,8 @@ def from_demos(dataset: Path, out: Path, opts: DemoCaseOptions, *, tasks: list[i
     settings = {**opts.settings(), "dataset": str(Path(dataset).resolve())}
     if (out / "info.json").is_file():
         old = ds.read_info(out).get("collection", {}).get("settings", {})
-        changed = sorted(k for k in {*settings, *old} - {"episodes_per_task"} if old.get(k) != settings.get(k))
+        per_run = {"episodes_per_task", "skip_per_task"}  # which episodes, not how: may differ between runs
+        changed = sorted(k for k in {*settings, *old} - per_run if old.get(k) != settings.get(k))
         if changed:
             raise InvalidInput(f"{out} holds cases made with other settings ({', '.join(changed)}); "
                                "use another --out, or the same settings to continue")
@@ -266,7 +272,9 @@ def from_demos(dataset: Path, out: Path, opts: DemoCaseOptions, *, tasks: list[i
             continue
         key = f"{m['suite']}/{m['task_id']}"
         per_task[key] = per_task.get(key, 0) + 1
-        if opts.episodes_per_task is not None and per_task[key] > opts.episodes_per_task:
+        if per_task[key] <= opts.skip_per_task:
+            continue
+        if opts.episodes_per_task is not None and per_task[key] > opts.skip_per_task + opts.episodes_per_task:
             continue
         plan.append((e, meta))
     summary = {"out": str(out.resolve()), "episodes": len(plan), "replayed": 0, "already_done": 0,
