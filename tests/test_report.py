@@ -189,14 +189,17 @@ def test_markdown_layout(report):
     header = rows[0]
     assert header[:5] == ["Task", "Instruction", BASE_N, SEAL2_N, SEAL_N]
     assert header[5:] == ["paper π0-reason", "paper SEAL"]
-    assert [r[0] for r in rows[2:]] == ["0", "1", "Average"]
-    task0, task1, avg = rows[2], rows[3], rows[4]
+    assert [r[0] for r in rows[2:]] == ["0", "1", "Average", "Average, common starts"]
+    task0, task1, avg, common = rows[2], rows[3], rows[4], rows[5]
     assert task0[1] == "put both the alphabet soup and the tomato sauce in the basket"
     assert task0[2] == "50.0 [23.7, 76.3]"  # Wilson 5/10
     assert task0[3] == "70.0 [39.7, 89.2]"
     assert task0[4] == "**90.9 [62.3, 98.4] (n=11)**"  # 10/11 (its extra trial succeeded): best, n marked
     assert all(c.startswith("**100.0") for c in task1[2:5])  # ties are all bold
     assert avg[4].startswith("**95.2") and not avg[2].startswith("**")  # pooled 20/21
+    # SEAL's extra trial makes its Average pool another set of starts: the common-starts row leaves it out
+    assert [c.split(" [")[0].strip("*") for c in common[2:5]] == ["75.0", "85.0", "95.0"]
+    assert "common starts" in md.split("libero_10: success rate (%)")[1].split("composition")[0]
     # The paper's Table VII/II numbers, trained on LIBERO-100, task 0: pi0_reason 90, seal 100.
     assert task0[5:] == ["90.0", "100.0"]
     comp = _md_table(md, "composition: success rate (%)")
@@ -208,7 +211,8 @@ def test_markdown_layout(report):
 def test_csv_layout(report):
     by_name = {p.name: p for p in report.csv}
     rows = list(csv.DictReader(by_name["success_libero_10.csv"].read_text().splitlines()))
-    assert [r["task"] for r in rows] == ["0", "1", "average"]
+    assert [r["task"] for r in rows] == ["0", "1", "average", "common"]
+    assert rows[3][f"{SEAL_N} n"] == "20"  # the starts every method ran
     assert float(rows[0][f"{BASE_N} success_pct"]) == 50.0 and rows[0][f"{BASE_N} n"] == "10"
     assert float(rows[0][f"{SEAL_N} ci_low"]) == pytest.approx(100 * wilson(10, 11)[0], abs=0.01)
     assert rows[0]["paper seal"] == "100.0" and rows[2][f"{SEAL_N} n"] == "21"

@@ -14,7 +14,8 @@ from dataclasses import dataclass
 from seal.report.data import MethodInfo, ReportData
 from seal.report.paper import PAPER_NAMES, PAPER_ORDER, TABLES, PaperResults
 from seal.report.stats import PairedDifference, paired_difference
-from seal.report.tables import SuccessTable, Table, cell_text, num, success_table, to_csv, usual_trials
+from seal.report.tables import (COMMON_NOTE, SuccessTable, Table, cell_text, num, row_name, success_table, to_csv,
+                                 usual_trials)
 
 OOD_SUITES = ("lang_rephrase", "lang_object_property", "visual_scene", "visual_viewpoint")
 SECTIONS = (("Table II layout: in distribution (LIBERO-10)", ("libero_10",)),
@@ -100,18 +101,21 @@ def layout_display(layout: PaperLayout) -> Table:
     usual = usual_trials(st)
     rows, bold = [], set()
     for i, key in enumerate(st.keys):
-        row = ["Average" if key == "average" else str(key)]
+        row = [row_name(key)]
         best = st.best(key)
         for col, (kind, j) in enumerate(columns, start=1):
             if kind == "ours":
-                row.append(cell_text(st.cells[key][j], usual if key != "average" else None))
+                row.append(cell_text(st.cells[key][j], usual if isinstance(key, int) else None))
                 if j in best:
                     bold.add((i, col))
             else:
                 value = st.paper[key][j]
                 row.append("–" if value is None else f"{value:.1f}")
         for d in layout.differences:
-            diff = d.by_key[key]
+            diff = d.by_key.get(key)
+            if diff is None:  # the common-starts row: the Average row's differences are paired already
+                row.append("")
+                continue
             row.append(difference_text(diff))
             if diff.n and (diff.ci[0] > 0 or diff.ci[1] < 0):
                 bold.add((i, len(row) - 1))
@@ -146,6 +150,8 @@ def _notes(layout: PaperLayout, usual: int) -> list[str]:
         notes.append("SEAL − base: each SEAL configuration minus the same policy unsteered, paired on the same "
                      "(task, trial) starts and seeds; per task, and over the whole suite in the Average row. "
                      "Interval: Newcombe's paired score interval, 95%; bold where it excludes 0.")
+    if "common" in st.cells:
+        notes.append(COMMON_NOTE)
     return notes
 
 
@@ -164,7 +170,7 @@ def differences_csv(layouts: list[PaperLayout]) -> str:
     rows = []
     for layout in layouts:
         for d in layout.differences:
-            for key in layout.table.keys:
+            for key in d.by_key:
                 r = d.by_key[key]
                 rows.append([layout.suite, key, d.seal.label, d.seal.config_hash, d.base.label, d.base.config_hash,
                              r.n, r.both, r.only_a, r.only_b, r.neither, num(100 * r.diff), num(100 * r.ci[0]),

@@ -66,13 +66,14 @@ class SuccessTable:
     paper_methods: list[str]  # paper columns, e.g. ["pi0_reason", "seal"]
     training: str
     tasks: list[int]
-    cells: dict[int | str, list[Cell]]  # task id (or "average") -> one Cell per method
+    # task id, "average" or (while some column is partial) "common" -> one Cell per method
+    cells: dict[int | str, list[Cell]]
     paper: dict[int | str, list[float | None]]  # same keys -> percent per paper column
     instructions: dict[int, str]
 
     @property
     def keys(self) -> list[int | str]:
-        return [*self.tasks, "average"]
+        return [*self.tasks, "average", *(["common"] if "common" in self.cells else [])]
 
     def best(self, key) -> set[int]:
         """Columns with the highest success rate in a row (ties all count)."""
@@ -95,10 +96,15 @@ def success_table(data: ReportData, suite: str, paper: PaperResults, training: s
                 paper_methods.append(pm)
     cells = {t: [data.cell(suite, t, m.config_hash) for m in methods] for t in tasks}
     cells["average"] = [data.pooled(m.config_hash, suite) for m in methods]
+    if len({c.n for c in cells["average"]}) > 1:  # a partial column: also pool only what every column ran
+        common = data.outcomes([m.config_hash for m in methods], suite)
+        cells["common"] = [Cell(n=len(common), successes=sum(o[j] for o in common)) for j in range(len(methods))]
     prates = {t: [paper.rate(suite, training, t, pm) for pm in paper_methods] for t in tasks}
     # The paper's average over the same tasks we ran, from its per-task rows (its printed
     # averages do not always match its own rows; see docs/reports.md).
     prates["average"] = [_mean([prates[t][j] for t in tasks]) for j in range(len(paper_methods))]
+    if "common" in cells:
+        prates["common"] = [None] * len(paper_methods)
     return SuccessTable(suite, methods, paper_methods, training, tasks, cells, prates,
                         {t: data.instruction(suite, t) for t in tasks})
 
@@ -114,20 +120,30 @@ def usual_trials(st: SuccessTable) -> int:
     return counts.most_common(1)[0][0] if counts else 0
 
 
+COMMON_NOTE = ("Some column is partial, so its Average pools other tasks than its neighbours': "
+               "'Average, common starts' pools only the (task, trial) starts every column ran; compare that row.")
+
+
+def row_name(key: int | str) -> str:
+    return {"average": "Average", "common": "Average, common starts"}.get(key, str(key))
+
+
 def success_display(st: SuccessTable) -> Table:
     usual = usual_trials(st)
     headers = ["Task", "Instruction", *[m.label for m in st.methods],
                *[f"paper {PAPER_NAMES.get(pm, pm)}" for pm in st.paper_methods]]
     rows, bold = [], set()
     for i, key in enumerate(st.keys):
-        row = ["Average" if key == "average" else str(key), "" if key == "average" else st.instructions.get(key, "")]
+        row = [row_name(key), st.instructions.get(key, "") if isinstance(key, int) else ""]
         for c in st.cells[key]:
-            row.append(cell_text(c, usual if key != "average" else None))
+            row.append(cell_text(c, usual if isinstance(key, int) else None))
         row += ["–" if v is None else f"{v:.1f}" for v in st.paper[key]]
         rows.append(row)
         bold |= {(i, 2 + j) for j in st.best(key)}
     notes = [(f"Success in percent with a Wilson 95% interval; {usual} trials per cell unless marked "
              "(n=...). Error trials count as failures (marked err). Average = all trials of the suite pooled.")]
+    if "common" in st.cells:
+        notes.append(COMMON_NOTE)
     if st.paper_methods:
         notes.append(f"Paper columns: {TABLES.get(st.suite, 'the paper')}, trained on {st.training}; "
                      "their average is the mean of the paper's per-task rows for the tasks shown.")
@@ -153,7 +169,7 @@ def success_csv(st: SuccessTable) -> str:
     headers += [f"paper {pm}" for pm in st.paper_methods]
     rows = []
     for key in st.keys:
-        row = [key, st.instructions.get(key, "") if key != "average" else ""]
+        row = [key, st.instructions.get(key, "") if isinstance(key, int) else ""]
         for m, c in zip(st.methods, st.cells[key]):
             lo, hi = c.ci
             row += [num(100 * c.rate), num(100 * lo), num(100 * hi), c.n, c.errors, m.config_hash]
