@@ -60,7 +60,9 @@ def shipped_vlas() -> dict[str, KnownVLA]:
         digest = str((manifest.get("files", {}).get(WEIGHTS) or {}).get("sha256") or manifest.get("weights_sha256", ""))
         if digest:
             render = (manifest.get("render") or {}).get("mode", "stock")
-            out[digest[:12]] = KnownVLA(SHIPPED_VLA_NAMES.get(key, key), render)
+            # a checkpoint kept when a retrained one replaced it carries its label in its manifest
+            label = (manifest.get("shipped") or {}).get("label") if key not in SHIPPED_VLA_NAMES else None
+            out[digest[:12]] = KnownVLA(label or SHIPPED_VLA_NAMES.get(key, key), render)
     return out
 
 

@@ -2,8 +2,10 @@
 description hashes a checkpoint without loading a model).
 
 ``vla`` alone means the shipped reasoning model; ``vla:twin`` and ``vla:reason`` name the two
-shipped checkpoints; anything else after the colon is a checkpoint directory (a `seal train vla`
-run directory holds one in ``checkpoint/``, which is used when given the run directory).
+shipped checkpoints, and every other directory of ``checkpoints/`` is loadable by its name too
+(``vla:reason_r0``: a checkpoint kept when a retrained one replaced it, `seal.policies.vla.ship`);
+anything else after the colon is a checkpoint directory (a `seal train vla` run directory holds
+one in ``checkpoint/``, which is used when given the run directory).
 """
 
 from __future__ import annotations
@@ -15,7 +17,9 @@ from seal.checkpoint import MANIFEST, CheckpointFormat
 from seal.errors import InvalidInput
 
 SHIPPED_DIR = Path(__file__).resolve().parent / "checkpoints"
-SHIPPED = {"reason": SHIPPED_DIR / "reason", "twin": SHIPPED_DIR / "twin"}
+# The two current checkpoints, then any kept under another name (read once: the package's files)
+SHIPPED = {"reason": SHIPPED_DIR / "reason", "twin": SHIPPED_DIR / "twin",
+           **{p.name: p for p in sorted(SHIPPED_DIR.glob("*/")) if not p.name.startswith(".") and (p / MANIFEST).is_file()}}
 FORMAT = 1
 KIND = "seal-vla"
 WEIGHTS, CONFIG, TOKENIZER = "model.safetensors", "config.json", "tokenizer.json"

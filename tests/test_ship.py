@@ -1,0 +1,66 @@
+"""Shipping a retrained VLA: the copy is checked, the replaced checkpoint stays loadable under a
+name, and the manifest records the chain of fine-tunes the weights came from."""
+
+import json
+import shutil
+
+import pytest
+
+from seal.checkpoint import MANIFEST
+from seal.errors import InvalidInput
+from seal.policies.vla.locate import CHECKPOINT, SHIPPED
+from seal.policies.vla.ship import lineage, ship
+
+
+def _run(tmp_path, name, source, **fields):
+    """A `seal train vla` run directory holding a copy of ``source`` with ``fields`` in its manifest."""
+    ckpt = tmp_path / name / "checkpoint"
+    shutil.copytree(source, ckpt)
+    manifest = json.loads((ckpt / MANIFEST).read_text()) | fields
+    (ckpt / MANIFEST).write_text(json.dumps(manifest))
+    return tmp_path / name
+
+
+def test_a_run_ships_with_its_lineage_and_the_old_checkpoint_stays_loadable(tmp_path):
+    root = tmp_path / "checkpoints"
+    shutil.copytree(SHIPPED["twin"], root / "reason")  # stands for the checkpoint being replaced
+    old = CHECKPOINT.digest(root / "reason")
+    first = _run(tmp_path, "r1", SHIPPED["reason"], command="seal train vla --steps 10", init_from=None)
+    second = _run(tmp_path, "r2", SHIPPED["reason"], command="seal train vla --init-from r1",
+                  init_from=str(first), sources=[{"annotations": "dagger_r1", "share": 0.5}])
+    assert [link["command"] for link in lineage(str(second))] == ["seal train vla --init-from r1",
+                                                                   "seal train vla --steps 10"]
+
+    # a damaged run is refused before anything moves
+    bad = _run(tmp_path, "bad", SHIPPED["reason"], init_from=None)
+    with (bad / "checkpoint" / "model.safetensors").open("r+b") as f:
+        f.seek(100)
+        f.write(b"\x00\x01")
+    with pytest.raises(InvalidInput, match="sha256"):
+        ship(bad, "reason", keep_as="reason_r0", root=root)
+    assert CHECKPOINT.digest(root / "reason") == old and not (root / "reason_r0").exists()
+    # the checkpoint in the way needs a name to be kept under
+    with pytest.raises(InvalidInput, match="keep_as"):
+        ship(second, "reason", root=root)
+
+    new = ship(second, "reason", keep_as="reason_r0", keep_label="reasoning VLA (round 0)", root=root)
+    assert CHECKPOINT.digest(new) == CHECKPOINT.digest(second / "checkpoint")
+    assert CHECKPOINT.digest(root / "reason_r0") == old  # kept, whole, under its new name
+    manifest = json.loads((new / MANIFEST).read_text())
+    assert manifest["shipped"]["name"] == "reason"
+    assert [link["command"] for link in manifest["lineage"]] == ["seal train vla --init-from r1",
+                                                                "seal train vla --steps 10"]
+    assert manifest["lineage"][0]["sources"] == [{"annotations": "dagger_r1", "share": 0.5}]
+    kept = json.loads((root / "reason_r0" / MANIFEST).read_text())["shipped"]
+    assert kept["label"] == "reasoning VLA (round 0)" and kept["replaced_by"] == manifest["lineage"][0]["digest"]
+    assert not list(root.glob(".*"))  # no staging left behind
+
+    # a later fine-tune of the shipped checkpoint inherits the chain recorded when it shipped
+    third = _run(tmp_path, "r3", SHIPPED["reason"], command="seal train vla --init-from reason",
+                 init_from=str(new))
+    assert [link.get("command") for link in lineage(str(third))] == [
+        "seal train vla --init-from reason", "seal train vla --init-from r1", "seal train vla --steps 10"]
+    with pytest.raises(InvalidInput, match="exists already"):
+        ship(third, "reason", keep_as="reason_r0", root=root)
+    with pytest.raises(InvalidInput, match="plain directory name"):
+        ship(third, "../elsewhere", root=root)
