@@ -95,6 +95,22 @@ def test_demonstrations_replay_into_labelled_verification_cases(recorded, tmp_pa
     opts = DemoCaseOptions(fractions=(0.5, 1.0), after=5)
     summary = from_demos(recorded, tmp_path, opts)
     assert summary["replay_failed"] == [] and summary["replayed"] == 1 and summary["cases"] > 0
+    assert summary["rerun"] == 1  # the expert ran again and gave the recording's exact actions
+    from seal.verify.demo_cases import expert_actions
+
+    stored = np.asarray(open_dataset(recorded).frames(0).column("action").to_pylist(), dtype=np.float64)
+    w = LiberoWorld(("libero_10", 5), render_mode="fast")
+    try:
+        exact = expert_actions(w, meta, stored)
+        assert exact is not None and exact.dtype == np.float64
+        assert np.array_equal(np.clip(exact, -1, 1).astype(np.float32), stored.astype(np.float32))
+        assert not np.array_equal(exact, stored)  # what float32 storage rounded away
+        other = stored.copy()
+        other[len(other) // 2, 0] += 0.01
+        assert expert_actions(w, meta, other) is None  # not this recording: its own actions are kept
+        assert expert_actions(w, {**meta, "meta": {**meta["meta"], "dart": 0.1}}, stored) is None
+    finally:
+        w.close()
     rows = vds.read_cases(tmp_path).to_pylist()
     assert {r["init_source"] for r in rows} == {"demo"} and {r["init_seed"] for r in rows} == {meta["meta"]["start_seed"]}
     for i, text in enumerate(meta["subplans"]):
@@ -107,6 +123,12 @@ def test_demonstrations_replay_into_labelled_verification_cases(recorded, tmp_pa
     assert (again["replayed"], again["already_done"]) == (0, 1)
     with pytest.raises(InvalidInput, match="fractions"):
         from_demos(recorded, tmp_path, DemoCaseOptions(fractions=(0.5,), after=5))
+    # a collection made replaying the stored float32 actions continues only that way
+    stored = from_demos(recorded, tmp_path / "stored", DemoCaseOptions(fractions=(0.5, 1.0), after=5,
+                                                                      rerun_expert=False))
+    assert stored["rerun"] == 0 and stored["replayed"] == 1
+    with pytest.raises(InvalidInput, match="--replay-stored"):
+        from_demos(recorded, tmp_path / "stored", opts)
     # a held-out set skips the episodes a training collection used (the fixture has one per task)
     assert from_demos(recorded, tmp_path / "held", DemoCaseOptions(skip_per_task=1))["episodes"] == 0
     with pytest.raises(InvalidInput, match="skip-episodes-per-task"):

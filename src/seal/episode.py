@@ -44,7 +44,11 @@ class Recording:
     agent: list = field(default_factory=list)
     wrist: list = field(default_factory=list)
     states: list = field(default_factory=list)
-    actions: list = field(default_factory=list)
+    actions: list = field(default_factory=list)  # float32, as datasets store them
+    # the exact float64 action each control step got: a contact-rich replay reproduces the
+    # episode only from these (float32-rounded actions drift, and some replays then fail)
+    executed: list = field(default_factory=list)
+    frames: bool = True  # False: actions and states only, no renders (re-running an episode)
 
 
 def check_dart(dart) -> float:
@@ -85,13 +89,14 @@ def run_policy_episode(world: LiberoWorld, policy, *, init_index: int, max_steps
                            start_seed=start_seed)
     # Recording/video wants frames (at ``image_size`` for datasets); a policy that looks at
     # images gets what it was trained on either way.
-    need_images = (image_size or True) if (recording is not None or writer is not None) else False
+    framed = (recording is not None and recording.frames) or writer is not None
+    need_images = (image_size or True) if framed else False
     wanted = images_for(policy, atoms)
     if isinstance(wanted, int) and not isinstance(wanted, bool) and need_images not in (False, wanted):
         raise InvalidInput(f"the policy sees {wanted}-px images but the recording asks for "
                            f"{'224' if need_images is True else need_images}-px frames; record at image_size={wanted}")
     need_images = wanted or need_images
-    every_frame = recording is not None or writer is not None
+    every_frame = framed
     try:
         obs = world.observe(images=need_images, privileged_atoms=atoms)
         reasoning = policy.reason(obs)
@@ -111,14 +116,17 @@ def run_policy_episode(world: LiberoWorld, policy, *, init_index: int, max_steps
                 offset[:6] = noise.normal(0.0, dart, 6)  # the gripper is never perturbed
             actions = chunk.actions[:ACTION_HORIZON]
             for i, action in enumerate(actions):
+                executed = np.clip(action + offset, -1.0, 1.0) if dart else action
                 if recording is not None:
-                    recording.agent.append(obs.agent)
-                    recording.wrist.append(obs.wrist)
+                    if recording.frames:
+                        recording.agent.append(obs.agent)
+                        recording.wrist.append(obs.wrist)
                     recording.states.append(obs.state.astype(np.float32))
                     recording.actions.append(np.asarray(action, dtype=np.float32))
+                    recording.executed.append(np.array(executed, dtype=np.float64))
                 if writer is not None and world.steps % 2 == 0:
                     writer.append_data(obs.agent)
-                world.step(np.clip(action + offset, -1.0, 1.0) if dart else action)
+                world.step(executed)
                 # a policy alone looks only at the observation that ends a chunk: no renders in between
                 looked_at = every_frame or i == len(actions) - 1
                 obs = world.observe(images=need_images if looked_at else False, privileged_atoms=atoms)

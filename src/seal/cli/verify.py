@@ -60,6 +60,10 @@ def add(sub) -> None:
     dem.add_argument("--grip-branch", action="store_true",
                      help="near misses: per sub-plan, one more replay from its start with the gripper held as it "
                      "began (a pick lifts an empty hand, a place never lets go), judged past the sub-plan's end")
+    dem.add_argument("--replay-stored", action="store_true",
+                     help="replay the stored float32 actions instead of re-running the expert for its exact ones "
+                     "(the behaviour of collections made before 2026-12-04; about 1 in 10 such replays drifts "
+                     "and fails)")
     dem.add_argument("--task-cases", action="store_true",
                      help="task-level cases (the question SEAL asks when a policy says the task is done): the "
                      "instruction judged at every sub-plan's end and at the last frame, by the task's goal")
@@ -148,7 +152,7 @@ def _cmd_verify_from_demos(args) -> int:
                            skip_per_task=args.skip_episodes_per_task,
                            branches=args.branches, branch_from=args.branch_from, branch_miss=args.branch_miss,
                            grip_branch=args.grip_branch, only_branches=args.only_branches,
-                           task_cases=args.task_cases)
+                           task_cases=args.task_cases, rerun_expert=not args.replay_stored)
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn()) as bar:
         job = bar.add_task("replaying demonstrations", total=None)
 

@@ -12,8 +12,12 @@ How a demonstration becomes cases (``seal verify from-demos``):
 - The dataset must come from `seal demos record` with sampled starts: each episode's meta holds
   its start seed, the sub-plans and the frame at which each sub-plan's goal first held
   (``critical_frames``). The episode is replayed in the render mode it was recorded in, from the
-  same start, with the recorded actions; a replay that does not end in success (the actions are
-  stored as float32) is skipped and counted.
+  same start. Datasets store actions as float32, and a contact-rich replay of float32-rounded
+  actions drifts (about 1 in 10 LIBERO-10 demonstrations then fails: a bowl that tips over the
+  drawer's lip); so by default (``rerun_expert``) the scripted expert is first run again from the
+  same start without rendering, which reproduces the recording bit for bit (its float32 actions
+  must equal the stored ones, else the stored actions are used), and its float64 actions are
+  replayed. A replay that still does not end in success is skipped and counted.
 - Sub-plan i runs from the frame where sub-plan i-1 was achieved (0 for the first) to its own
   critical frame e. Its "before" view is the front camera at the start frame; the candidate end
   states are the frames at ``fractions`` of the way to e (1.0 is e itself) and ``after`` frames
@@ -83,6 +87,7 @@ class DemoCaseOptions:
     # task-level cases: "does the instruction hold?" at every sub-plan's end and the episode's last frame,
     # as SEAL asks when a policy says the task is done (module docstring)
     task_cases: bool = False
+    rerun_expert: bool = True  # replay the expert's exact float64 actions, recovered by running it again
 
     def settings(self) -> dict:
         out = {"source": SOURCE, "fractions": list(self.fractions), "after": self.after}
@@ -94,6 +99,8 @@ class DemoCaseOptions:
             out["only_branches"] = True
         if self.task_cases:
             out["task_cases"] = True
+        if self.rerun_expert:  # collections made before it replayed the stored float32 actions
+            out["rerun_expert"] = True
         return out
 
     def check(self) -> None:
@@ -149,6 +156,32 @@ def _segments(meta: dict) -> list[tuple[str, int, int]]:
             out.append((text, start, int(end)))
         start = max(start, int(end))
     return out
+
+
+def expert_actions(world, meta: dict, recorded: np.ndarray) -> np.ndarray | None:
+    """The float64 actions the scripted expert executed in a recorded demonstration, by running it
+    again from the same start (it is deterministic, and no frame is rendered); None where that
+    cannot be the recording: a DART demonstration (its executed actions were perturbed), one
+    without the expert's settings, or a re-run whose float32 actions differ from the stored ones."""
+    from seal.episode import Recording, run_policy_episode
+    from seal.policies.expert.policy import FailureKnobs, ScriptedExpert
+
+    m = meta.get("meta") or {}
+    if m.get("dart") or not isinstance(m.get("knobs"), dict) or "start_seed" not in m:
+        return None
+    rec = Recording(frames=False)
+    try:
+        run_policy_episode(world, ScriptedExpert.for_world(world, FailureKnobs(**m["knobs"])),
+                           init_index=int(m.get("init_index", 0)), recording=rec, start_seed=int(m["start_seed"]),
+                           max_steps=len(recorded))
+    except (SimulationError, TypeError):  # TypeError: knobs of another version of the expert
+        return None
+    if len(rec.executed) != len(recorded):
+        return None
+    stored = np.clip(np.stack(rec.actions), -1, 1).astype(np.float64)
+    if not np.array_equal(stored, recorded):
+        return None
+    return np.stack(rec.executed)
 
 
 def replay_cases(world, meta: dict, actions: np.ndarray, base: dict, opts: DemoCaseOptions) -> tuple[list[dict], bool]:
@@ -255,7 +288,9 @@ def from_demos(dataset: Path, out: Path, opts: DemoCaseOptions, *, tasks: list[i
         per_run = {"episodes_per_task", "skip_per_task"}  # which episodes, not how: may differ between runs
         changed = sorted(k for k in {*settings, *old} - per_run if old.get(k) != settings.get(k))
         if changed:
-            raise InvalidInput(f"{out} holds cases made with other settings ({', '.join(changed)}); "
+            hint = (" (it was made replaying the stored actions: add --replay-stored to continue it)"
+                    if changed == ["rerun_expert"] and opts.rerun_expert else "")
+            raise InvalidInput(f"{out} holds cases made with other settings ({', '.join(changed)}){hint}; "
                                "use another --out, or the same settings to continue")
     done = {p.name for p in ds.shard_paths(out)}
     failed_before = ds.read_info(out)["collection"].get("replay_failed", []) if (out / "info.json").is_file() else []
@@ -278,7 +313,7 @@ def from_demos(dataset: Path, out: Path, opts: DemoCaseOptions, *, tasks: list[i
             continue
         plan.append((e, meta))
     summary = {"out": str(out.resolve()), "episodes": len(plan), "replayed": 0, "already_done": 0,
-               "replay_failed": [], "cases": 0, "success": 0, "failure": 0}
+               "replay_failed": [], "rerun": 0, "cases": 0, "success": 0, "failure": 0}
     world, world_key = None, None
     try:
         for n, (e, meta) in enumerate(plan):
@@ -293,6 +328,11 @@ def from_demos(dataset: Path, out: Path, opts: DemoCaseOptions, *, tasks: list[i
                     world.close()
                 world, world_key = LiberoWorld(task, render_mode=mode), (task.key, mode)
             actions = np.asarray(reader.frames(e).column("action").to_pylist(), dtype=np.float64)
+            if opts.rerun_expert:
+                exact = expert_actions(world, meta, actions)
+                if exact is not None:
+                    actions = exact
+                    summary["rerun"] += 1
             base = {"suite": task.suite, "task_id": task.task_id, "task": task.key, "init_source": SOURCE,
                     "init_index": e, "init_seed": int(meta["meta"]["start_seed"]), "episode": e, "seed": -1,
                     "policy": "scripted", "knobs": SOURCE, "instruction": task.instruction}
