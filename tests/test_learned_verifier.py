@@ -257,7 +257,7 @@ def test_without_a_shipped_checkpoint_plain_learned_says_how_to_make_one(tmp_pat
         make_verifier("learned")
 
 
-@pytest.mark.parametrize("name", ["learned", "learned:expert"])
+@pytest.mark.parametrize("name", ["learned", "learned:expert", "learned:vla_rounds"])
 def test_the_shipped_checkpoints_match_their_manifests_and_judge(data, name):
     import hashlib
 
@@ -273,10 +273,15 @@ def test_the_shipped_checkpoints_match_their_manifests_and_judge(data, name):
     # the earlier one keeps its name in results stores; the shipped one names the policy its cases came from
     if name == "learned:expert":
         assert CHECKPOINT.digest(directory) == "8818a7a2714f"
+    elif name == "learned:vla_rounds":  # shipped until 2026-12-04: the lift table's verifier
+        assert CHECKPOINT.digest(directory) == "808648b1ea87"
+        assert manifest["case_policies"]["init_from"]["digest"] == "8818a7a2714f"
     else:
         assert directory == DEFAULT_CHECKPOINT
-        assert manifest["case_policies"]["init_from"]["digest"] == "8818a7a2714f"
+        assert manifest["case_policies"]["init_from"]["digest"] == "808648b1ea87"
         assert {s["policy_ckpt_digest"] for s in manifest["case_policies"]["sources"]} >= {"009dcdd7fb35"}
+        # its held-out figures on the documented protocol travel with it
+        assert manifest["shipped"]["held_out"]["subplan_protocol"]["n"] >= 300
     verifier = make_verifier(name)
     verdicts = verifier.verify_batch(_requests(data, 4))
     assert len(verdicts) == 4 and all(v.success in (True, False) and 0.0 <= v.score <= 1.0 for v in verdicts)

@@ -30,6 +30,7 @@ def test_config_hashes_of_older_stores_are_kept():
 SHIPPED_VLA = Path(__file__).resolve().parents[1] / "src/seal/policies/vla/checkpoints"
 SHIPPED_VERIFIER = Path(__file__).resolve().parents[1] / "src/seal/verify/checkpoints/learned"
 EXPERT_VERIFIER = SHIPPED_VERIFIER.parent / "expert"  # the first shipped one, `learned:expert`
+VLA_ROUNDS_VERIFIER = SHIPPED_VERIFIER.parent / "vla_rounds"  # the second, `learned:vla_rounds`
 
 
 def _shipped_digests() -> dict:
@@ -39,7 +40,8 @@ def _shipped_digests() -> dict:
     vla = {name: json.loads((SHIPPED_VLA / name / "manifest.json").read_text())["files"]["model.safetensors"]["sha256"][:12]
            for name in ("reason", "twin")}
     learned = {name: hashlib.sha1((d / "model.safetensors").read_bytes() + (d / "config.json").read_bytes()).hexdigest()[:12]
-               for name, d in (("learned", SHIPPED_VERIFIER), ("learned:expert", EXPERT_VERIFIER))}
+               for name, d in (("learned", SHIPPED_VERIFIER), ("learned:expert", EXPERT_VERIFIER),
+                               ("learned:vla_rounds", VLA_ROUNDS_VERIFIER))}
     return {**vla, **learned}
 
 
@@ -59,8 +61,8 @@ def test_config_hashes_of_plugins_are_kept(tmp_path):
     """Hashes, labels and canonical forms of every plug-in's settings, computed with the code before the
     plug-ins owned their options (issue 35): stores made then must find their trials now."""
     # These pins name the shipped weights of today; a retrained shipped checkpoint is a new method (re-pin then).
-    assert _shipped_digests() == {"reason": "009dcdd7fb35", "twin": "14bb7098169e", "learned": "808648b1ea87",
-                                  "learned:expert": "8818a7a2714f"}
+    assert _shipped_digests() == {"reason": "009dcdd7fb35", "twin": "14bb7098169e", "learned": "c0646b399509",
+                                  "learned:expert": "8818a7a2714f", "learned:vla_rounds": "808648b1ea87"}
     value = _fixed_value_checkpoint(tmp_path)
     cases = [  # (spec, config hash, label, canonical form: its keys in this order)
         (MethodSpec(policy="vla"), "0c35fb9f53", "seal[policy=vla,render=fast,policy_ckpt=009dcdd7fb35]",

@@ -69,6 +69,9 @@ def test_the_earlier_shipped_verifier_keeps_a_name_of_its_own():
     assert current["model"] != earlier["model"]
     assert display_name(current) == "reasoning VLA + SEAL (learned verifier)"
     assert display_name(earlier) == "reasoning VLA + SEAL (learned verifier from expert rounds)"
+    second = MethodSpec(policy="vla", verifier="learned:vla_rounds").canonical()
+    assert len({current["model"], earlier["model"], second["model"]}) == 3
+    assert display_name(second) == "reasoning VLA + SEAL (learned verifier from the first VLA's rounds)"
 
 
 def test_the_paper_column_follows_the_policy():

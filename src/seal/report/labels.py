@@ -31,7 +31,8 @@ TWIN = SHIPPED_VLA_NAMES["twin"]
 STEERING_NAMES = {"seal": "SEAL", "value": "V-GPS", "random": "random pick"}
 VERIFIER_NAMES = {"oracle": "oracle", "noisy": "noisy oracle", "learned": "learned verifier",
                   "openai": "OpenAI VLM", "gemini": "Gemini VLM"}
-EARLIER_VERIFIER_NAMES = {"expert": "expert rounds"}  # `learned:expert`: trained on the scripted expert's rounds
+# `learned:expert`: trained on the scripted expert's rounds; `learned:vla_rounds`: fine-tuned on the first VLA's
+EARLIER_VERIFIER_NAMES = {"expert": "expert rounds", "vla_rounds": "the first VLA's rounds"}
 # Settings a name never shows: identities already in the policy's name, digests, or what the
 # method name says.
 _SILENT = {"method", "policy", "policy_ckpt", "value_ckpt"}
