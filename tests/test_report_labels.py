@@ -78,6 +78,10 @@ def test_the_paper_column_follows_the_policy():
     expected = {"twin (pi0)": "pi0", "twin + V-GPS": "pi0_vgps", "reasoning VLA": "pi0_reason",
                 "reasoning VLA + SEAL (oracle)": "seal", "reasoning VLA + SEAL (learned verifier)": "seal"}
     assert {name: paper_method_for(config) for name, config in _standard().items()} == expected
+    # a twin kept under another name when a retrained one shipped still stands where pi0 stands
+    kept = {"abc123abc123": KnownVLA("twin, round 0", "fast", twin=True)}
+    config = {"method": "base", "policy": "vla", "mode": "sync", "render": "fast", "policy_ckpt": "abc123abc123"}
+    assert paper_method_for(config, kept) == "pi0" and display_name(config, vlas=kept) == "twin, round 0 (pi0)"
 
 
 def test_settings_that_differ_are_named_briefly():

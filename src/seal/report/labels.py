@@ -27,7 +27,6 @@ DEFAULTS = {"k": 10, "rounds": 2, "render": "stock", "mode": "sync", "knobs": "m
             "verify_order": "slot", "check_every": 20, "subplan_budget": 200, "planner": "", "prompt": "task",
             "value_goal": "task", "false_positive": 0.0, "false_negative": 0.0}
 SHIPPED_VLA_NAMES = {"reason": "reasoning VLA", "twin": "twin"}
-TWIN = SHIPPED_VLA_NAMES["twin"]
 STEERING_NAMES = {"seal": "SEAL", "value": "V-GPS", "random": "random pick"}
 VERIFIER_NAMES = {"oracle": "oracle", "noisy": "noisy oracle", "learned": "learned verifier",
                   "openai": "OpenAI VLM", "gemini": "Gemini VLM"}
@@ -44,6 +43,7 @@ class KnownVLA:
 
     name: str
     render: str
+    twin: bool = False  # a non-reasoning twin: it stands where the paper's plain pi0 stands
 
 
 def shipped_vlas() -> dict[str, KnownVLA]:
@@ -63,7 +63,8 @@ def shipped_vlas() -> dict[str, KnownVLA]:
             render = (manifest.get("render") or {}).get("mode", "stock")
             # a checkpoint kept when a retrained one replaced it carries its label in its manifest
             label = (manifest.get("shipped") or {}).get("label") if key not in SHIPPED_VLA_NAMES else None
-            out[digest[:12]] = KnownVLA(label or SHIPPED_VLA_NAMES.get(key, key), render)
+            out[digest[:12]] = KnownVLA(label or SHIPPED_VLA_NAMES.get(key, key), render,
+                                        twin=key == "twin" or key.startswith("twin_"))
     return out
 
 
@@ -92,13 +93,19 @@ def display_name(config: dict, vlas: dict[str, KnownVLA] | None = None) -> str:
     notes = _steering_notes(config) + _setting_notes(config, vlas)
     if method == "base":
         head = policy
-        if policy == TWIN:
+        if is_twin(config, vlas):
             notes.insert(0, "pi0")
     else:
         head = f"{policy} + {STEERING_NAMES.get(method, method)}"
     leftover = [f"{k}={_show(v)}" for k, v in sorted(config.items()) if k not in _SILENT and k not in _NAMED]
     notes += leftover  # a setting this module does not know yet still tells configurations apart
     return head + (f" ({', '.join(notes)})" if notes else "")
+
+
+def is_twin(config: dict, vlas: dict[str, KnownVLA]) -> bool:
+    """Whether a configuration's policy is a shipped twin (the current one or one kept by name)."""
+    known = vlas.get(str(config.get("policy_ckpt", ""))) if config.get("policy") == "vla" else None
+    return bool(known and known.twin)
 
 
 def policy_name(config: dict, vlas: dict[str, KnownVLA]) -> str:

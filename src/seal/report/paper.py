@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from importlib import resources
 
 from seal.errors import InvalidInput
-from seal.report.labels import TWIN, KnownVLA, policy_name, shipped_vlas
+from seal.report.labels import KnownVLA, is_twin, shipped_vlas
 
 PAPER_METHOD = {"base": "pi0_reason", "value": "pi0_vgps", "seal": "seal"}
 PAPER_NAMES = {"pi0": "π0", "pi0_vgps": "π0+V-GPS", "pi0_reason": "π0-reason", "seal": "SEAL"}
@@ -62,6 +62,6 @@ def paper_method_for(config: dict, vlas: dict[str, KnownVLA] | None = None) -> s
     name (default: the shipped ones), which tell the twin from the reasoning VLA."""
     method = config.get("method", "")
     if method == "base" and config.get("policy") == "vla":
-        if policy_name(config, shipped_vlas() if vlas is None else vlas) == TWIN:
+        if is_twin(config, shipped_vlas() if vlas is None else vlas):
             return "pi0"
     return PAPER_METHOD.get(method)
