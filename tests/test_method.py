@@ -38,7 +38,7 @@ def _shipped_digests() -> dict:
     import hashlib
 
     vla = {name: json.loads((SHIPPED_VLA / name / "manifest.json").read_text())["files"]["model.safetensors"]["sha256"][:12]
-           for name in ("reason", "twin")}
+           for name in ("reason", "twin", "reason_r0", "twin_r0")}
     learned = {name: hashlib.sha1((d / "model.safetensors").read_bytes() + (d / "config.json").read_bytes()).hexdigest()[:12]
                for name, d in (("learned", SHIPPED_VERIFIER), ("learned:expert", EXPERT_VERIFIER),
                                ("learned:vla_rounds", VLA_ROUNDS_VERIFIER))}
@@ -61,20 +61,23 @@ def test_config_hashes_of_plugins_are_kept(tmp_path):
     """Hashes, labels and canonical forms of every plug-in's settings, computed with the code before the
     plug-ins owned their options (issue 35): stores made then must find their trials now."""
     # These pins name the shipped weights of today; a retrained shipped checkpoint is a new method (re-pin then).
-    assert _shipped_digests() == {"reason": "009dcdd7fb35", "twin": "14bb7098169e", "learned": "c0646b399509",
+    # The first shipped pair stays loadable by name (vla:reason_r0, vla:twin_r0): the pins below name it that
+    # way, so stores made with it keep finding their trials after the round-2 VLA and its twin shipped.
+    assert _shipped_digests() == {"reason": "563400068f48", "twin": "cd9f0d7bdb3c", "reason_r0": "009dcdd7fb35",
+                                  "twin_r0": "14bb7098169e", "learned": "c0646b399509",
                                   "learned:expert": "8818a7a2714f", "learned:vla_rounds": "808648b1ea87"}
     value = _fixed_value_checkpoint(tmp_path)
     cases = [  # (spec, config hash, label, canonical form: its keys in this order)
-        (MethodSpec(policy="vla"), "0c35fb9f53", "seal[policy=vla,render=fast,policy_ckpt=009dcdd7fb35]",
+        (MethodSpec(policy="vla:reason_r0"), "0c35fb9f53", "seal[policy=vla,render=fast,policy_ckpt=009dcdd7fb35]",
          {"method": "seal", "k": 10, "rounds": 2, "verifier": "oracle", "model": None, "false_positive": 0.0,
-          "false_negative": 0.0, "policy": "vla", "mode": "sync", "render": "fast", "done_check": "verify",
-          "policy_ckpt": "009dcdd7fb35"}),
-        (MethodSpec(method="base", policy="vla"), "767e9bd037", "base[policy=vla,render=fast,policy_ckpt=009dcdd7fb35]",
+          "false_negative": 0.0, "policy": "vla", "mode": "sync", "render": "fast", "policy_ckpt": "009dcdd7fb35",
+          "done_check": "verify"}),  # a named checkpoint sits before done_check; the hash does not see the order
+        (MethodSpec(method="base", policy="vla:reason_r0"), "767e9bd037", "base[policy=vla,render=fast,policy_ckpt=009dcdd7fb35]",
          {"method": "base", "policy": "vla", "mode": "sync", "render": "fast", "policy_ckpt": "009dcdd7fb35"}),
-        (MethodSpec(policy="vla:twin"), "ea43916c1f", "seal[policy=vla,render=fast,policy_ckpt=14bb7098169e]", None),
-        (MethodSpec(method="base", policy="vla:twin"), "d1fec96036",
+        (MethodSpec(policy="vla:twin_r0"), "ea43916c1f", "seal[policy=vla,render=fast,policy_ckpt=14bb7098169e]", None),
+        (MethodSpec(method="base", policy="vla:twin_r0"), "d1fec96036",
          "base[policy=vla,render=fast,policy_ckpt=14bb7098169e]", None),
-        (MethodSpec(policy="vla", policy_ckpt="twin", planner="annotations", check_every=40), "1dc4345fc4",
+        (MethodSpec(policy="vla", policy_ckpt="twin_r0", planner="annotations", check_every=40), "1dc4345fc4",
          "seal[policy=vla,render=fast,check_every=40,planner=annotations,policy_ckpt=14bb7098169e]", None),
         # the verifier every table before 2026-12-04 used, by its name and by its directory
         (MethodSpec(verifier="learned:expert"), "df755dab3f", "seal[verifier=learned,model=8818a7a2714f]",
@@ -115,11 +118,12 @@ def test_config_hashes_of_plugins_are_kept(tmp_path):
         if canonical is not None:
             assert list(spec.canonical().items()) == list(canonical.items())
     # the same methods written as `seal eval --methods` items
-    (vla, twin, noisy) = parse_methods("seal:policy=vla,base:policy=vla:policy_ckpt=twin,"
+    (vla, twin, noisy) = parse_methods("seal:policy=vla:policy_ckpt=reason_r0,base:policy=vla:policy_ckpt=twin_r0,"
                                        "seal:verifier=noisy:false_positive=0.1:false_negative=0.2")
     assert [m.config_hash for m in (vla, twin, noisy)] == ["0c35fb9f53", "d1fec96036", "0d77a42d98"]
+    (shipped,) = parse_methods("seal:policy=vla")
     (reason,) = parse_methods("seal:policy=vla:policy_ckpt=reason")  # the shipped default, named
-    assert (reason.config_hash, reason.label) == (vla.config_hash, vla.label)
+    assert (reason.config_hash, reason.label) == (shipped.config_hash, shipped.label) != (vla.config_hash, vla.label)
     (v,) = parse_methods(f"value:value_ckpt={value}")
     assert v.config_hash == "34e1da3e4d"
 
