@@ -217,7 +217,7 @@ CASES_TASK, CASES_STEPS = 0, 95  # soup and sauce into the basket: by step 90 th
 def with_cases():
     """The same DAgger episode run without and with verification cases, the world's exact state captured
     at every case (the held-versus-released one included, taken after the rollout)."""
-    ckpt = str(resolve_checkpoint("reason"))
+    ckpt = str(resolve_checkpoint("reason_r0"))  # the first shipped VLA: the rollout the tests below describe
     plain = dagger.run_dagger_episode(dagger.DaggerJob("libero_10", CASES_TASK, 0, 1, ckpt, 0.5, "fast", 64, CASES_STEPS))
     snaps = []
     original = dagger.VerifierCaseTaker._case

@@ -16,7 +16,8 @@ def _run(tmp_path, name, source, **fields):
     """A `seal train vla` run directory holding a copy of ``source`` with ``fields`` in its manifest."""
     ckpt = tmp_path / name / "checkpoint"
     shutil.copytree(source, ckpt)
-    manifest = json.loads((ckpt / MANIFEST).read_text()) | fields
+    manifest = json.loads((ckpt / MANIFEST).read_text())
+    manifest = {k: v for k, v in manifest.items() if k not in ("lineage", "shipped")} | fields  # a plain run
     (ckpt / MANIFEST).write_text(json.dumps(manifest))
     return tmp_path / name
 

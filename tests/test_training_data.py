@@ -88,27 +88,30 @@ def test_demonstrations_replay_into_labelled_verification_cases(recorded, tmp_pa
     """`seal verify from-demos`: the replay reaches the recorded success, every sub-plan is judged
     along its way (not yet achieved half-way, achieved just after its end), and a re-run replays
     nothing."""
-    from seal.verify import dataset as vds
-    from seal.verify.demo_cases import DemoCaseOptions, from_demos
+    from functools import partial
 
+    from seal.demos import exact_actions
+    from seal.verify import dataset as vds
+    from seal.verify.demo_cases import DemoCaseOptions
+    from seal.verify.demo_cases import from_demos as bare
+
+    from_demos = partial(bare, exact_actions=exact_actions)  # as the CLI calls it
     meta = open_dataset(recorded).episode_meta(0)
     opts = DemoCaseOptions(fractions=(0.5, 1.0), after=5)
     summary = from_demos(recorded, tmp_path, opts)
     assert summary["replay_failed"] == [] and summary["replayed"] == 1 and summary["cases"] > 0
     assert summary["rerun"] == 1  # the expert ran again and gave the recording's exact actions
-    from seal.verify.demo_cases import expert_actions
-
     stored = np.asarray(open_dataset(recorded).frames(0).column("action").to_pylist(), dtype=np.float64)
     w = LiberoWorld(("libero_10", 5), render_mode="fast")
     try:
-        exact = expert_actions(w, meta, stored)
+        exact = exact_actions(w, meta, stored)
         assert exact is not None and exact.dtype == np.float64
         assert np.array_equal(np.clip(exact, -1, 1).astype(np.float32), stored.astype(np.float32))
         assert not np.array_equal(exact, stored)  # what float32 storage rounded away
         other = stored.copy()
         other[len(other) // 2, 0] += 0.01
-        assert expert_actions(w, meta, other) is None  # not this recording: its own actions are kept
-        assert expert_actions(w, {**meta, "meta": {**meta["meta"], "dart": 0.1}}, stored) is None
+        assert exact_actions(w, meta, other) is None  # not this recording: its own actions are kept
+        assert exact_actions(w, {**meta, "meta": {**meta["meta"], "dart": 0.1}}, stored) is None
     finally:
         w.close()
     rows = vds.read_cases(tmp_path).to_pylist()
@@ -129,6 +132,8 @@ def test_demonstrations_replay_into_labelled_verification_cases(recorded, tmp_pa
     assert stored["rerun"] == 0 and stored["replayed"] == 1
     with pytest.raises(InvalidInput, match="--replay-stored"):
         from_demos(recorded, tmp_path / "stored", opts)
+    with pytest.raises(InvalidInput, match="exact_actions"):
+        bare(recorded, tmp_path / "none", opts)
     # a held-out set skips the episodes a training collection used (the fixture has one per task)
     assert from_demos(recorded, tmp_path / "held", DemoCaseOptions(skip_per_task=1))["episodes"] == 0
     with pytest.raises(InvalidInput, match="skip-episodes-per-task"):

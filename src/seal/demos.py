@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from seal.datasets import Episode, LeRobotWriter
-from seal.errors import InvalidInput
+from seal.errors import InvalidInput, SimulationError
 from seal.episode import Recording, check_dart, run_policy_episode
 from seal.policies.expert.policy import FailureKnobs, ScriptedExpert
 from seal.sim.fast_assets import CACHE_VERSION as FAST_VERSION
@@ -201,3 +201,28 @@ def _run_parallel(jobs: list[_Job], workers: int, finish) -> None:
     with multiprocessing.get_context("spawn").Pool(workers, initializer=ignore_interrupts) as pool:
         for result in pool.imap_unordered(_run_job, jobs, chunksize=1):
             finish(*result)
+
+
+def exact_actions(world, meta: dict, recorded: np.ndarray) -> np.ndarray | None:
+    """The float64 actions the scripted expert executed in a recorded demonstration (``meta``: its
+    dataset meta; ``recorded``: its stored float32 actions), by running it again from the same start
+    in ``world`` (it is deterministic, and no frame is rendered); None where that cannot be the
+    recording: a DART demonstration (its executed actions were perturbed), one without the expert's
+    settings, or a re-run whose float32 actions differ from the stored ones. Datasets store float32,
+    and a contact-rich replay of rounded actions drifts (`seal verify from-demos` uses this)."""
+    m = meta.get("meta") or {}
+    if m.get("dart") or not isinstance(m.get("knobs"), dict) or "start_seed" not in m:
+        return None
+    rec = Recording(frames=False)
+    try:
+        run_policy_episode(world, ScriptedExpert.for_world(world, FailureKnobs(**m["knobs"])),
+                           init_index=int(m.get("init_index", 0)), recording=rec, start_seed=int(m["start_seed"]),
+                           max_steps=len(recorded))
+    except (SimulationError, TypeError):  # TypeError: knobs of another version of the expert
+        return None
+    if len(rec.executed) != len(recorded):
+        return None
+    stored = np.clip(np.stack(rec.actions), -1, 1).astype(np.float64)
+    if not np.array_equal(stored, recorded):
+        return None
+    return np.stack(rec.executed)

@@ -138,6 +138,7 @@ def _collection_kept(out: Path, opts) -> str:
 def _cmd_verify_from_demos(args) -> int:
     from seal.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
+    from seal.demos import exact_actions
     from seal.verify.demo_cases import DemoCaseOptions, from_demos
 
     try:
@@ -159,7 +160,8 @@ def _cmd_verify_from_demos(args) -> int:
         def progress(done, total, text):
             bar.update(job, completed=done, total=total, description=text)
 
-        summary = from_demos(Path(args.dataset), Path(args.out), opts, tasks=tasks, progress=progress)
+        summary = from_demos(Path(args.dataset), Path(args.out), opts, tasks=tasks, progress=progress,
+                             exact_actions=exact_actions)
     if summary["replay_failed"]:
         print(f"seal: warning: {len(summary['replay_failed'])} replay(s) did not end in success and gave no cases "
               f"(episodes {summary['replay_failed'][:10]})", file=sys.stderr)

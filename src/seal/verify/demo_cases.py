@@ -158,32 +158,6 @@ def _segments(meta: dict) -> list[tuple[str, int, int]]:
     return out
 
 
-def expert_actions(world, meta: dict, recorded: np.ndarray) -> np.ndarray | None:
-    """The float64 actions the scripted expert executed in a recorded demonstration, by running it
-    again from the same start (it is deterministic, and no frame is rendered); None where that
-    cannot be the recording: a DART demonstration (its executed actions were perturbed), one
-    without the expert's settings, or a re-run whose float32 actions differ from the stored ones."""
-    from seal.episode import Recording, run_policy_episode
-    from seal.policies.expert.policy import FailureKnobs, ScriptedExpert
-
-    m = meta.get("meta") or {}
-    if m.get("dart") or not isinstance(m.get("knobs"), dict) or "start_seed" not in m:
-        return None
-    rec = Recording(frames=False)
-    try:
-        run_policy_episode(world, ScriptedExpert.for_world(world, FailureKnobs(**m["knobs"])),
-                           init_index=int(m.get("init_index", 0)), recording=rec, start_seed=int(m["start_seed"]),
-                           max_steps=len(recorded))
-    except (SimulationError, TypeError):  # TypeError: knobs of another version of the expert
-        return None
-    if len(rec.executed) != len(recorded):
-        return None
-    stored = np.clip(np.stack(rec.actions), -1, 1).astype(np.float64)
-    if not np.array_equal(stored, recorded):
-        return None
-    return np.stack(rec.executed)
-
-
 def replay_cases(world, meta: dict, actions: np.ndarray, base: dict, opts: DemoCaseOptions) -> tuple[list[dict], bool]:
     """Replay one episode in ``world`` and return (case rows, whether the replay succeeded)."""
     oracle = OracleVerifier()
@@ -273,13 +247,19 @@ def _task_of(meta: dict):
 
 
 def from_demos(dataset: Path, out: Path, opts: DemoCaseOptions, *, tasks: list[int] | None = None,
-               progress: Callable | None = None) -> dict:
+               progress: Callable | None = None, exact_actions: Callable | None = None) -> dict:
     """Write cases from the recorded episodes of ``dataset`` into ``out`` (resumable: an episode whose
-    shard exists is not replayed again). ``tasks``: only these task ids."""
+    shard exists is not replayed again). ``tasks``: only these task ids. ``exact_actions(world, meta,
+    stored)``: the recording's exact float64 actions or None (`seal.demos.exact_actions`, which runs the
+    expert again; passed in because a verifier's module does not drive the expert), needed with
+    ``opts.rerun_expert``."""
     from seal.datasets.lerobot import LeRobotReader
     from seal.sim.world import LiberoWorld
 
     opts.check()
+    if opts.rerun_expert and exact_actions is None:
+        raise InvalidInput("rerun_expert needs exact_actions (seal.demos.exact_actions); or replay the stored "
+                           "actions (--replay-stored)")
     reader = LeRobotReader(Path(dataset))
     out = Path(out)
     settings = {**opts.settings(), "dataset": str(Path(dataset).resolve())}
@@ -329,7 +309,7 @@ def from_demos(dataset: Path, out: Path, opts: DemoCaseOptions, *, tasks: list[i
                 world, world_key = LiberoWorld(task, render_mode=mode), (task.key, mode)
             actions = np.asarray(reader.frames(e).column("action").to_pylist(), dtype=np.float64)
             if opts.rerun_expert:
-                exact = expert_actions(world, meta, actions)
+                exact = exact_actions(world, meta, actions)
                 if exact is not None:
                     actions = exact
                     summary["rerun"] += 1
