@@ -19,6 +19,7 @@
 #   VALUE_CKPT   `seal train value` run directory for twin + V-GPS (unset: that method is skipped)
 #   MAX_STEPS    episode cap (--max-steps), for smoke tests only: it is not part of a method's
 #                identity, so capped trials would pass for real ones; refused with the default DB
+#   WORKERS      trials run in parallel (seal eval --workers, default 1); one per free core
 #   RETRY_ERRORS set to 1: also run again the trials stored as errors (seal eval --retry-errors)
 #   SEAL         the seal executable (default: this checkout's .venv/bin/seal)
 #   REPORT_ARGS  extra `seal report` options (default: --media link)
@@ -46,6 +47,7 @@ MAX_STEPS="${MAX_STEPS:-}"
 VALUE_CKPT="${VALUE_CKPT:-}"
 REPORT_ARGS="${REPORT_ARGS:---media link}"
 RETRY_ERRORS="${RETRY_ERRORS:-}"
+WORKERS="${WORKERS:-1}"
 
 # Methods in table order (scripts/generalization_plan.py holds the same table and the cost
 # estimates). One `seal eval` per suite takes every method, and it runs a start under each method
@@ -88,8 +90,8 @@ IFS=, read -r -a want_suites <<< "$SUITES"
 for s in "${want_suites[@]}"; do
   [[ ",$ALL_SUITES," == *",$s,"* ]] || die "unknown suite '$s' in SUITES; valid: $ALL_SUITES"
 done
-for n in "$TRIALS" "$COMP_TRIALS" ${MAX_STEPS:+"$MAX_STEPS"}; do
-  [[ "$n" =~ ^[1-9][0-9]*$ ]] || die "TRIALS, COMP_TRIALS and MAX_STEPS must be positive integers (got '$n')"
+for n in "$TRIALS" "$COMP_TRIALS" "$WORKERS" ${MAX_STEPS:+"$MAX_STEPS"}; do
+  [[ "$n" =~ ^[1-9][0-9]*$ ]] || die "TRIALS, COMP_TRIALS, WORKERS and MAX_STEPS must be positive integers (got '$n')"
 done
 
 wanted() { [[ ",$METHODS," == *",$1,"* ]]; }
@@ -128,7 +130,7 @@ command_for() {  # the seal eval command of one suite and every method, as argum
   local suite="$1" items=() m
   for m in "${methods[@]}"; do items+=("${ITEM[$m]}"); done
   cmd=("$SEAL" eval --suite "$suite" --methods "$(IFS=,; echo "${items[*]}")" --trials "$(trials_of "$suite")" --db "$DB"
-       --render fast --workers 1 --video none)
+       --render fast --workers "$WORKERS" --video none)
   [ -n "$TASKS" ] && cmd+=(--tasks "$TASKS")
   [ -n "$MAX_STEPS" ] && cmd+=(--max-steps "$MAX_STEPS")
   [ "$RETRY_ERRORS" = 1 ] && cmd+=(--retry-errors)

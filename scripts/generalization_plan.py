@@ -251,7 +251,8 @@ def plan(*, suites: list[str], methods: list[str], tasks: str, trials: int, comp
             "total_trials": totals["trials"], "total_to_run": totals["to_run"],
             "total_cpu_hours": round(totals["cpu_hours"], 2),
             "total_cpu_hours_to_run": round(totals["cpu_hours_to_run"], 2),
-            "note": "one trial worker (--workers 1): wall hours of the run ~ CPU hours; totals leave out skipped "
+            "note": "CPU hours; with one trial worker (WORKERS=1) wall hours ~ CPU hours, with one worker per core "
+                    "somewhat more than CPU hours / cores; totals leave out skipped "
                     "methods; defaults were measured on a shared 2-core machine (docs/results.md, docs/performance.md)"}
 
 

@@ -82,6 +82,11 @@ def test_dry_run_matches_plan_and_skips_vgps(tmp_path):
                 for method in words[words.index("--methods") + 1].split(",")]
         assert "--render fast --workers 1 --video none" in line and str(tmp_path / "g.db") in line
     assert got == want and len(got) == 6 * 4 and len(lines) == 6
+    # WORKERS runs trials in parallel; a bad value is refused with the names of the knobs
+    two = _run(["bash", str(SCRIPT), "--dry-run"], env | {"WORKERS": "2"}, tmp_path)
+    assert all("--workers 2 " in line for line in two.stdout.splitlines()), two.stdout
+    zero = _run(["bash", str(SCRIPT), "--dry-run"], env | {"WORKERS": "0"}, tmp_path)
+    assert zero.returncode == 2 and "WORKERS" in zero.stderr and "got '0'" in zero.stderr
 
     # a VALUE_CKPT directory without weights: refused before anything runs or any database is made
     bad = tmp_path / "not_a_value_run"
