@@ -78,6 +78,21 @@ def test_every_label_is_the_experts_answer_for_that_exact_state(labelled):
         assert row["think"] == (row["vla_now"] != row["now"])
 
 
+def test_executed_actions_lead_from_each_stored_state_to_the_next(labelled):
+    """The transitions offline RL reads: a boundary's executed actions, replayed from its exact state,
+    give the next boundary's stored state (the VLA's chunks and the expert's, whichever ran)."""
+    attempt, episode, rows, snaps, world = labelled
+    assert [len(r["executed"]) for r in rows] == [5] * 6
+    for i in range(len(rows) - 1):
+        world.restore(snaps[i])
+        for action in rows[i]["executed"]:
+            world.step(action)
+        np.testing.assert_allclose(world.observe(images=False).state, episode.states[i + 1], atol=1e-6)
+    # the chunk that ran is the expert's label where the mixture picked the expert, else the VLA's own
+    assert sum(np.allclose(np.stack(r["executed"]), r["chunk"].reshape(16, 7)[:5]) for r in rows) >= \
+        attempt["executed"]["expert"]
+
+
 def test_labels_of_older_collections_train_only_their_executed_prefix(tmp_path):
     """Collections from before closed-loop labels stored the expert's one-shot extrapolation, whose
     tail is not what the expert executes: only the first ACTION_HORIZON steps count there."""
@@ -88,7 +103,8 @@ def test_labels_of_older_collections_train_only_their_executed_prefix(tmp_path):
     table = pa.table({"reasoning": ["a"], "vla_reasoning": ["a"], "now": ["x"], "think": [False], "valid": [True],
                       "chunk": pa.array([[0.0] * 112], pa.list_(pa.float32(), 112))})
     pq.write_table(table, tmp_path / "old.parquet")
-    assert dagger.read_frame_labels(tmp_path, {"labels_path": "old.parquet"})["chunk_steps"].tolist() == [ACTION_HORIZON]
+    old = dagger.read_frame_labels(tmp_path, {"labels_path": "old.parquet"})
+    assert old["chunk_steps"].tolist() == [ACTION_HORIZON] and old["executed"] is None  # unknown, not empty
     pq.write_table(table.append_column("chunk_steps", pa.array([11], pa.int64())), tmp_path / "new.parquet")
     assert dagger.read_frame_labels(tmp_path, {"labels_path": "new.parquet"})["chunk_steps"].tolist() == [11]
 
@@ -107,6 +123,8 @@ def test_a_round_resumes_without_recording_anything_twice_and_trains_beside_demo
     assert len(records) == 1 and records[0]["frame_labels"] and records[0]["start"] == ["libero_10", TASK, 0]
     table = pq.read_table(out / "annotations" / records[0]["labels_path"])
     assert table.num_rows == 6 and table.column("chunk").type.list_size == 16 * 7
+    labels = dagger.read_frame_labels(out / "annotations", records[0])
+    assert [a.shape for a in labels["executed"]] == [(5, 7)] * 6
     assert main(argv[:-2] + ["--beta", "0.2", "--out", str(out)]) == 2  # other settings: refused, nothing lost
     assert "other settings" in capsys.readouterr().err
     assert main(["demos", "dagger-report", str(out)]) == 0

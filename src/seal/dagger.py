@@ -22,7 +22,9 @@ says "done" while its sub-goal does not hold, a non-finite chunk), the frame is 
 Output: ``OUT/dataset`` is a LeRobot v2.1 dataset with one frame per chunk boundary (``action`` is the
 first step of the expert's chunk); ``OUT/annotations`` is an annotation sidecar in `seal annotate`'s
 layout whose per-episode label files carry, per frame, the expert's reasoning text, the VLA's,
-the think label, the validity and the whole expert chunk. `seal train vla --annotations
+the think label, the validity, the whole expert chunk and the actions the world then executed
+(``executed``: the VLA's or the expert's, up to the next boundary; empty where the episode ended
+on the VLA's word). `seal train vla --annotations
 DEMOS_ANN,OUT/annotations --mix ...` trains on both. Resumable like `seal demos record`: every
 attempt is logged, and the same command continues where it stopped.
 
@@ -244,7 +246,10 @@ def run_dagger_episode(job: DaggerJob) -> tuple[DaggerJob, dict, Episode | None,
                              "vla_reasoning": mine.text(), "vla_now": mine.now, "think": bool(think),
                              "valid": label.valid, "why": label.why, "chunk": label.chunk.reshape(-1),
                              "chunk_steps": label.steps if job.closed_loop else ACTION_HORIZON,
-                             "step": world.steps})
+                             "step": world.steps,
+                             # what the world then took from this state (the VLA's or the expert's actions, up
+                             # to the next boundary or the episode's end): the transitions offline RL learns from
+                             "executed": []})
             if taker is not None:
                 taker.boundary(grip_closed)
             if mine.finished:  # the VLA declared the task done while it is not: a label, and the end
@@ -271,6 +276,7 @@ def run_dagger_episode(job: DaggerJob) -> tuple[DaggerJob, dict, Episode | None,
                 executed["vla"] += 1
             for i, action in enumerate(actions):
                 world.step(action)
+                rec.rows[-1]["executed"].append(np.asarray(action, np.float32))
                 grip_closed = float(action[-1]) > 0  # LIBERO's gripper command: -1 open, +1 close
                 last = i == len(actions) - 1
                 obs = world.observe(images=job.image_size if last else False, privileged_atoms=atoms)
@@ -774,6 +780,8 @@ def _write_labels(ann: Path, index: int, episode: Episode, rows: list[dict], lab
         "step": pa.array([r["step"] for r in rows], pa.int64()),
         "chunk": pa.array([r["chunk"].astype(np.float32).tolist() for r in rows], pa.list_(pa.float32(), PREDICT_HORIZON * 7)),
         "chunk_steps": pa.array([r["chunk_steps"] for r in rows], pa.int64()),
+        "executed": pa.array([np.asarray(r["executed"], np.float32).reshape(-1).tolist() for r in rows],
+                             pa.list_(pa.float32())),
     })
     rel = labels_path.format(chunk=index // chunk_size, episode=index)
     path = ann / rel
@@ -801,7 +809,9 @@ def read_frame_labels(ann: Path, record: dict) -> dict[str, np.ndarray | list]:
     # Collections before closed-loop labels stored the expert's one-shot extrapolation: only its
     # first ACTION_HORIZON steps are what the expert executes, so only those are trained on.
     steps = np.asarray(table.get("chunk_steps", [ACTION_HORIZON] * len(chunks)), np.int64)
-    return {"chunk_steps": steps, "reasoning": table["reasoning"], "vla_reasoning": table["vla_reasoning"], "now": table["now"],
+    # Collections before this column did not keep the executed actions (None: unknown, not "none").
+    executed = [np.asarray(a, np.float32).reshape(-1, 7) for a in table["executed"]] if "executed" in table else None
+    return {"chunk_steps": steps, "executed": executed, "reasoning": table["reasoning"], "vla_reasoning": table["vla_reasoning"], "now": table["now"],
             "think": np.asarray(table["think"], bool), "valid": np.asarray(table["valid"], bool), "chunks": chunks}
 
 
