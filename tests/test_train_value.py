@@ -182,3 +182,85 @@ def test_iql_config_refuses_bad_values_with_the_field_named(field, value, messag
     with pytest.raises(InvalidInput, match=message):
         IQLConfig(**{field: value})
     IQLConfig()  # the defaults pass
+
+
+def _rollout_collection(root, solved: list[bool]):
+    """A `seal demos dagger`-shaped collection without the simulator: synthetic 64-px frames, the
+    expert's `now` label advancing through the plans, the executed actions of every boundary."""
+    import dataclasses
+
+    from _annotate_data import PLANS
+
+    from seal.annotate.pipeline import ANNOTATIONS, CHUNK_SIZE, LABELS_PATH
+    from seal.dagger import _write_labels
+    from seal.datasets import LeRobotWriter
+    from seal.policies.base import Reasoning
+
+    episodes, rows_of = [], []
+    with LeRobotWriter(root / "dataset", fps=4, image_size=64) as w:
+        for i, ok in enumerate(solved):
+            ep = synthetic_episode(8, seed=i)
+            small = ep.agent_images[:, ::4, ::4][:, :64, :64]  # 56-px synthetic frames padded to 64
+            small = np.ascontiguousarray(np.pad(small, ((0, 0), (0, 8), (0, 8), (0, 0))))
+            ep = dataclasses.replace(ep, agent_images=small, wrist_images=255 - small,
+                                     critical_frames=[-1] * len(PLANS),
+                                     meta=ep.meta | {"success": ok, "dagger": {"ckpt": "test"}})
+            # the expert's next sub-plan per boundary: plan 0 for 3 boundaries, plan 1 for 2, a frame it could
+            # not label, then plan 1 again; an unsolved episode stops moving at its last boundary
+            at = [0, 0, 0, 1, 1, None, 1, 3 if ok else 1]  # plans 1 and 3 share a text: the done list tells them apart
+            now = [Reasoning(tuple(PLANS), tuple(PLANS[:k]), PLANS[k]).text() if k is not None else "?" for k in at]
+            rows = [{"reasoning": n, "now": n, "vla_reasoning": n, "vla_now": n, "think": False, "valid": n != "?",
+                     "why": "", "step": 5 * j, "chunk": np.zeros(16 * 7, np.float32), "chunk_steps": 16,
+                     "executed": [np.full(7, 0.1 * j, np.float32)] * (5 if ok or j < 7 else 0)}
+                    for j, n in enumerate(now)]
+            index = w.add(ep)
+            ann = root / "annotations"
+            ann.mkdir(exist_ok=True)
+            _write_labels(ann, index, ep, rows, LABELS_PATH, CHUNK_SIZE, ANNOTATIONS)
+            episodes.append(ep)
+            rows_of.append(rows)
+    return episodes, rows_of
+
+
+def test_rollout_transitions_reward_reached_goals_and_keep_failures(tmp_path):
+    from _annotate_data import PLANS
+
+    from seal.train.transitions import rollout_transitions
+
+    episodes, _ = _rollout_collection(tmp_path / "coll", [True, False])
+    solved = rollout_transitions(tmp_path / "coll", "both", [0])
+    task = [i for i, g in enumerate(solved.goal) if g == episodes[0].instruction]
+    assert solved.reward[task].tolist() == [0] * 7 + [1] and solved.to_goal[task].tolist() == list(range(8, 0, -1))
+    # the executed chunk of boundary j (actions 0.1 * j), and the next boundary's frame after it
+    assert np.allclose(solved.action[task][3], 0.3) and (solved.next_state[task][3] == episodes[0].states[4]).all()
+    sub = [(g, r) for g, r in zip(solved.goal, solved.reward) if g != episodes[0].instruction]
+    # plan 0 reached when the expert moves on to plan 1; plan 1 cut by the unlabelled frame (not reached),
+    # picked up again and reached when the expert names the last plan; the last plan reached with the task
+    assert sub == [(PLANS[0], 0), (PLANS[0], 0), (PLANS[0], 1), (PLANS[1], 0), (PLANS[1], 0),
+                   (PLANS[1], 1), (PLANS[-1], 1)]
+    failed = rollout_transitions(tmp_path / "coll", "task", [1])
+    # the failed episode's last boundary executed nothing (the VLA declared the task done): no transition
+    assert len(failed) == 7 and failed.reward.sum() == 0 and (failed.to_goal == -1).all()
+
+
+def test_value_trains_on_demonstrations_and_rollouts_and_refuses_old_collections(tmp_path, capsys):
+    import pyarrow.parquet as pq
+
+    make_v21(tmp_path / "demos", [40, 35, 45])
+    _rollout_collection(tmp_path / "coll", [True, False, True, False, True])
+    argv = ["train", "value", "--dataset", str(tmp_path / "demos"), "--rollouts", str(tmp_path / "coll"),
+            "--out", str(tmp_path / "run"), "--steps", "20", "--batch", "16", "--holdout", "0.4"]
+    assert main(argv) == 0
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert out["rollout_transitions"] > 0 and out["heldout_rollouts"]["transitions"] > 0
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    (split,) = summary["rollouts"].values()
+    assert sorted(split["train_episodes"] + split["heldout_episodes"]) == [0, 1, 2, 3, 4]
+    # a collection from before the executed actions were kept: refused, naming what to do
+    labels = next((tmp_path / "coll" / "annotations").rglob("*.parquet"))
+    pq.write_table(pq.read_table(labels).drop_columns(["executed"]), labels)
+    assert main(argv[:-8] + ["--out", str(tmp_path / "run2"), "--steps", "5", "--holdout", "0.4"]) == 2
+    assert "before DAgger kept the executed actions" in capsys.readouterr().err
+    assert main(["train", "value", "--dataset", str(tmp_path / "demos"), "--rollouts", str(tmp_path / "nope"),
+                 "--out", str(tmp_path / "run3")]) == 2
+    assert "not a `seal demos dagger` collection" in capsys.readouterr().err

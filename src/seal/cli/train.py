@@ -35,6 +35,9 @@ def add(sub) -> None:
     value = train.add_argument_group("value")
     value.add_argument("--goals", default="both", choices=["task", "subplan", "both"],
                        help="goal texts to condition on: the task instruction, each sub-plan, or both")
+    value.add_argument("--rollouts", default=None, metavar="DIR[,DIR]",
+                       help="`seal demos dagger` collections (their OUT directories) whose executed chunks add a "
+                            "policy's own transitions, failures included, to the demonstrations")
     value.add_argument("--gamma", type=RATE, default=0.9, help="discount per 5-step chunk")
     value.add_argument("--expectile", type=real_in(0.0, 1.0, low_open=True, high_open=True), default=0.7, help="IQL's tau")
     vla = train.add_argument_group("vla")
@@ -127,14 +130,19 @@ def _cmd_train(args) -> int:
 
     if not args.dataset:
         raise InvalidInput("seal train value needs --dataset (a LeRobot dataset)")
+    rollouts = [Path(p.strip()) for p in (args.rollouts or "").split(",") if p.strip()]
+    for path in rollouts:
+        if not (path / "dataset").is_dir():
+            raise InvalidInput(f"--rollouts {path}: not a `seal demos dagger` collection (no dataset/ in it)")
     given = {"steps": args.steps, "batch_size": args.batch_size, "lr": args.lr, "seed": args.seed}
     cfg = IQLConfig(gamma=args.gamma, expectile=args.expectile, **{k: v for k, v in given.items() if v is not None})
     stages = {"load": "reading episodes", "train": "IQL updates"}
     with _stage_bars(stages, lambda m: f"q_loss {m['q_loss']:.4f}" if m and "q_loss" in m else "") as progress:
         summary = train_value_on_dataset(Path(args.dataset), Path(args.out), goals=args.goals,
                                          holdout=0.2 if args.holdout is None else args.holdout, cfg=cfg,
-                                         progress=progress)
-    print(json.dumps({k: summary[k] for k in ("train_transitions", "last", "heldout", "train_fit") if k in summary}))
+                                         rollouts=rollouts, progress=progress)
+    print(json.dumps({k: summary[k] for k in ("train_transitions", "rollout_transitions", "last", "heldout",
+                                              "heldout_rollouts", "train_fit") if k in summary}))
     return 0
 
 
