@@ -256,6 +256,12 @@ def test_value_trains_on_demonstrations_and_rollouts_and_refuses_old_collections
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     (split,) = summary["rollouts"].values()
     assert sorted(split["train_episodes"] + split["heldout_episodes"]) == [0, 1, 2, 3, 4]
+    # scored on rollouts (here the same collection): per run and goal kind, on the collection's transitions
+    assert main(["bench", "value", "--ckpt", str(tmp_path / "run"), "--data", str(tmp_path / "coll"), "--k", "4"]) == 0
+    scored = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["rollouts"]
+    assert scored["episodes_solved"] == 3 and scored["task_transitions"] == 3 * 8 + 2 * 7
+    assert set(scored[str(tmp_path / "run")]) == {"task", "subplan"}
+    assert scored[str(tmp_path / "run")]["task"]["transitions"] == 38
     # a collection from before the executed actions were kept: refused, naming what to do
     labels = next((tmp_path / "coll" / "annotations").rglob("*.parquet"))
     pq.write_table(pq.read_table(labels).drop_columns(["executed"]), labels)

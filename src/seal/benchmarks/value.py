@@ -6,7 +6,11 @@
   ``value`` method adds), median of 20;
 - with ``--dataset DIR``: `seal train value` for ``--steps`` updates (default 300) into a
   temporary directory, then the held-out figures of its summary (return rank correlation,
-  goal accuracy).
+  goal accuracy);
+- with ``--ckpt RUN[,RUN]`` and ``--data COLL``: each trained value function scored on a policy's
+  rollouts (a `seal demos dagger` collection none of them trained on): does Q rank the chunks that
+  led to a goal above those that did not, for the task goal and for the sub-plan goals
+  (``rollouts``, per run).
 """
 
 from __future__ import annotations
@@ -38,6 +42,8 @@ def run(args) -> dict:
 
     k = args.k
     out: dict = {}
+    if args.ckpt and args.data:
+        out["rollouts"] = score_on_rollouts([c for c in args.ckpt.split(",") if c], args.data)
     with tempfile.TemporaryDirectory() as tmp:
         steps = 40
         t0 = time.perf_counter()
@@ -59,4 +65,20 @@ def run(args) -> dict:
             out |= {"dataset": args.dataset, "train_steps": train_steps,
                     "train_transitions": summary["train_transitions"], "heldout": summary.get("heldout"),
                     "train_fit": summary.get("train_fit")}
+    return out
+
+
+def score_on_rollouts(runs: list[str], collection: str) -> dict:
+    """Held-out figures of trained value functions on a rollout collection, per goal kind."""
+    from seal.train.transitions import rollout_transitions
+    from seal.train.vgps import IQLConfig, evaluate_value
+    from seal.value.vgps import load_scorer_nets
+
+    data = {kind: rollout_transitions(collection, kind) for kind in ("task", "subplan")}
+    out = {"collection": collection,
+           "episodes_solved": int(data["task"].reward.sum()), "task_transitions": len(data["task"])}
+    for run in runs:
+        nets, meta = load_scorer_nets(run)
+        gamma = float(meta.get("config", {}).get("gamma", IQLConfig().gamma))
+        out[run] = {kind: evaluate_value(nets, d, IQLConfig(gamma=gamma)) for kind, d in data.items()}
     return out

@@ -13,7 +13,8 @@ def add(sub) -> None:
 
     bench.add_argument("what", choices=list(BENCHMARKS))
     bench.add_argument("--ckpt", default=None, help="vla: checkpoint (default: a random-init model of the default "
-                                                     "config; 'reason'/'twin': the shipped ones)")
+                                                     "config; 'reason'/'twin': the shipped ones); value: trained value runs "
+                                                     "(comma-separated) to score on --data")
     bench.add_argument("--annotations", default=None, help="vla: annotations for the held-out figures")
     bench.add_argument("--size", default=None, help="vla without --ckpt: a size preset (S, M = default, L, M-p8, "
                                                      "M-e192x3)")
@@ -71,7 +72,8 @@ def add(sub) -> None:
     vb.add_argument("--verifier", default="oracle",
                     help="verifier: oracle | openai | gemini | noisy | learned[:RUN_DIR]; steer: the verifier SEAL uses")
     vb.add_argument("--data", default=None, help="verifier: `seal verify collect` directory (default: a small "
-                    "fresh held-out set, collected once into runs/verifier/heldout/)")
+                    "fresh held-out set, collected once into runs/verifier/heldout/); value: a `seal demos dagger` "
+                    "collection whose rollouts --ckpt is scored on")
     vb.add_argument("--out", default=None, help="verifier: Markdown file; verifier-sweep: results directory "
                     "(default runs/verifier/sweep)")
     vb.add_argument("--limit", type=COUNT, default=None, help="verifier: score at most N cases (a fixed shuffle)")
