@@ -165,9 +165,21 @@ def test_a_round_resumes_without_recording_anything_twice_and_trains_beside_demo
 def test_bad_settings_are_refused_before_anything_is_written(tmp_path):
     with pytest.raises(InvalidInput, match="--beta"):
         dagger.collect_dagger("libero_10", tmp_path / "a", ckpt="reason", episodes_per_task=1, beta=1.5)
-    with pytest.raises(InvalidInput, match="non-reasoning twin"):
-        dagger.collect_dagger("libero_10", tmp_path / "b", ckpt="twin", episodes_per_task=1)
+    with pytest.raises(InvalidInput, match="non-reasoning twin: it writes no sub-plans"):
+        dagger.collect_dagger("libero_10", tmp_path / "b", ckpt="twin", episodes_per_task=1,
+                              verifier_cases=tmp_path / "cases")
     assert not list(tmp_path.iterdir())
+
+
+def test_the_twin_rolls_out_with_expert_labels_and_never_thinks():
+    """The pi0 twin's own states (DAgger for the baseline, and its chunks for offline RL): the expert's
+    labels as for the reasoning VLA, its own text the instruction, no think label."""
+    job = dagger.DaggerJob("libero_10", TASK, 0, 1, str(resolve_checkpoint("twin")), 0.0, "fast", 64, 15)
+    _, attempt, episode, rows = dagger.run_dagger_episode(job)
+    dagger.release_cached()
+    assert attempt["frames"] == len(rows) == 3 and attempt["executed"] == {"vla": 3, "expert": 0}
+    assert all(r["valid"] and not r["think"] and r["vla_now"] == episode.instruction for r in rows)
+    assert all(r["now"] == "pick up the book" for r in rows) and [len(r["executed"]) for r in rows] == [5, 5, 5]
 
 
 def test_on_policy_figures_count_boundaries_and_committed_subplans():

@@ -28,6 +28,11 @@ on the VLA's word). `seal train vla --annotations
 DEMOS_ANN,OUT/annotations --mix ...` trains on both. Resumable like `seal demos record`: every
 attempt is logged, and the same command continues where it stopped.
 
+The non-reasoning twin (the pi0 baseline) can be rolled out too: its own states with the expert's
+action labels (DAgger for the twin), and its executed chunks for offline RL (`seal train value
+--rollouts`); its reasoning columns hold the expert's text, its own is the instruction, and it never
+thinks.
+
 With ``verifier_cases`` (``--verifier-cases DIR``) the same rollouts also yield verification cases
 (`seal.verify.dataset` layout) from the VLA's own states, labelled by the oracle: see
 `VerifierCaseTaker`. Off by default; on or off, the rollout and what the DAgger dataset records are
@@ -237,8 +242,9 @@ def run_dagger_episode(job: DaggerJob) -> tuple[DaggerJob, dict, Episode | None,
             if check_at is not None and check is None and world.steps >= check_at:
                 check = (world.snapshot(), world.steps, len(rec.rows))
             label = teacher_label(expert, obs, world if job.closed_loop else None)
-            # think: the sub-plan the VLA acts on is not the next one (done already, skipped or garbled)
-            think = mine.now != label.reasoning.now
+            # think: the sub-plan the VLA acts on is not the next one (done already, skipped or garbled); a
+            # non-reasoning twin acts on the instruction and never thinks
+            think = vla.cfg.reasoning and mine.now != label.reasoning.now
             rec.agent.append(obs.agent)
             rec.wrist.append(obs.wrist)
             rec.states.append(obs.state.astype(np.float32))
@@ -590,8 +596,9 @@ def collect_dagger(suite: str, out: Path, *, ckpt: str, episodes_per_task: int, 
     where = resolve_checkpoint(ckpt)
     digest = checkpoint_digest(ckpt)  # refuses a damaged checkpoint before any output exists
     config = read_config(where)
-    if not config.reasoning:
-        raise InvalidInput(f"{where} is a non-reasoning twin; DAgger labels reasoning, roll out the reasoning VLA")
+    if not config.reasoning and verifier_cases is not None:
+        raise InvalidInput(f"{where} is a non-reasoning twin: it writes no sub-plans, so its rollouts give no "
+                           "verification cases (drop --verifier-cases, or roll out a reasoning VLA)")
     render = render_mode or trained_render(ckpt)["mode"]
     settings = {"ckpt_digest": digest, "round": round_, "beta": float(beta), "render_mode": render,
                 "image_size": config.image_size, "suite": suite, "max_steps": max_steps}

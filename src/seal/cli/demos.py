@@ -37,7 +37,7 @@ def add(sub) -> None:
     rec.set_defaults(func=_cmd_demos)
     dag = demos_sub.add_parser("dagger", help="roll out a learned VLA on fresh starts and record the scripted "
                                               "expert's labels at every state it reaches (DAgger; resumable)")
-    dag.add_argument("--ckpt", default="reason", help="the VLA to roll out: reason (shipped), or a checkpoint/run dir")
+    dag.add_argument("--ckpt", default="reason", help="the VLA to roll out: reason (shipped), twin (the pi0 baseline: its own states and chunks), or a checkpoint/run dir")
     dag.add_argument("--suite", default="libero_10")
     dag.add_argument("--tasks", default="", help="comma-separated task ids (default: all)")
     dag.add_argument("--episodes-per-task", type=COUNT, default=10)
