@@ -74,6 +74,23 @@ def test_the_earlier_shipped_verifier_keeps_a_name_of_its_own():
     assert display_name(second) == "reasoning VLA + SEAL (learned verifier from the first VLA's rounds)"
 
 
+def test_a_stricter_verifier_threshold_is_a_method_of_its_own_and_says_so():
+    from seal.errors import InvalidInput
+    from seal.steer.method import parse_methods
+    from seal.verify import verifier_for
+
+    plain, strict = parse_methods("seal:policy=vla:verifier=learned,seal:policy=vla:verifier=learned:threshold=0.8")
+    # the default leaves every stored configuration's hash as it was; a threshold makes a new one
+    assert "threshold" not in plain.canonical() and strict.canonical()["threshold"] == 0.8
+    assert plain.config_hash != strict.config_hash
+    assert display_name(strict.canonical()) == "reasoning VLA + SEAL (learned verifier, threshold 0.8)"
+    assert verifier_for(strict).threshold == 0.8 and verifier_for(plain).threshold == 0.5
+    for bad, message in (("verifier=learned:threshold=1.5", "probability in \\[0, 1\\]"),
+                         ("threshold=0.5", "for the learned verifier, not 'oracle'")):
+        with pytest.raises(InvalidInput, match=message):
+            parse_methods(f"seal:policy=vla:{bad}")
+
+
 def test_the_paper_column_follows_the_policy():
     expected = {"twin (pi0)": "pi0", "twin + V-GPS": "pi0_vgps", "reasoning VLA": "pi0_reason",
                 "reasoning VLA + SEAL (oracle)": "seal", "reasoning VLA + SEAL (learned verifier)": "seal"}

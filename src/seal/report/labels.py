@@ -141,6 +141,8 @@ def _steering_notes(config: dict) -> list[str]:
         notes += [f"{label} {100 * float(config[key]):g}%" for key, label in
                   (("false_positive", "false passes"), ("false_negative", "false fails"))
                   if float(config.get(key, 0.0)) != DEFAULTS[key]]
+    if config.get("threshold") is not None:
+        notes.append(f"threshold {float(config['threshold']):g}")
     if "k" in config and int(config["k"]) != DEFAULTS["k"]:
         notes.append(f"K={config['k']}")
     if method == "seal":
@@ -194,7 +196,7 @@ def _setting_notes(config: dict, vlas: dict[str, KnownVLA]) -> list[str]:
 # Settings the functions above put into words (or deliberately leave out).
 _NAMED = {"knobs", "render", "mode", "mismatch", "subplan_budget", "planner", "planner_model", "annotations", "prompt",
           "k", "rounds", "verifier", "model", "false_positive", "false_negative", "pick", "verify_order",
-          "check_every", "done_check", "value_goal"}
+          "check_every", "done_check", "value_goal", "threshold"}
 
 
 def _show(value) -> str:

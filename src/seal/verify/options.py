@@ -10,7 +10,20 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar
 
+from seal.errors import InvalidInput
 from seal.options import RATE, Options, option
+
+
+def _threshold(text: str) -> float:
+    """A ``threshold=`` in a ``--methods`` item: a probability, or an error that names it."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = None
+    if value is None or not 0.0 <= value <= 1.0:
+        raise InvalidInput(f"threshold={text!r}: the learned verifier's threshold is a probability in [0, 1] "
+                           "(P(success) at or above it passes)")
+    return value
 
 
 @dataclass(frozen=True)
@@ -28,6 +41,11 @@ class LearnedOptions(VerifierOptions):
     written ``learned:RUN_DIR``; the weights, not the path, decide the verdicts."""
 
     checkpoint: ClassVar[str] = "model"
+    # An operating point: with the VLA, a false pass costs SEAL an episode and a refusal costs a round
+    # (docs/results.md, the noise sweeps), so a stricter cut than the checkpoint's 0.5 can pay.
+    threshold: float | None = option(None, "learned: P(success) at or above which a verdict passes (default: "
+                                           "the checkpoint's)", type=RATE, parse=lambda text: _threshold(text),
+                                     later=True, strict=True)
 
     def weights(self):
         from seal.verify.learned import CHECKPOINT, checkpoint_dir
