@@ -17,6 +17,8 @@
 #   TASKS        comma-separated task ids, in every suite run (default: all)
 #   METHODS      comma-separated subset of twin,twin_vgps,vla,vla_seal,vla_seal_learned (default: all)
 #   VALUE_CKPT   `seal train value` run directory for twin + V-GPS (unset: that method is skipped)
+#   LEARNED_THRESHOLD  the learned verifier's operating point for vla_seal_learned (unset: the checkpoint's;
+#                set, the method is another configuration, named with its threshold)
 #   MAX_STEPS    episode cap (--max-steps), for smoke tests only: it is not part of a method's
 #                identity, so capped trials would pass for real ones; refused with the default DB
 #   WORKERS      trials run in parallel (seal eval --workers, default 1); one per free core
@@ -59,14 +61,14 @@ declare -A ITEM=(
   [twin_vgps]="value:policy=vla:policy_ckpt=twin:value_ckpt=${VALUE_CKPT}:k=10"
   [vla]="base:policy=vla"
   [vla_seal]="seal:policy=vla:k=10"
-  [vla_seal_learned]="seal:policy=vla:k=10:verifier=learned"
+  [vla_seal_learned]="seal:policy=vla:k=10:verifier=learned${LEARNED_THRESHOLD:+:threshold=$LEARNED_THRESHOLD}"
 )
 declare -A NAME=(
   [twin]="twin (pi0)"
   [twin_vgps]="twin + V-GPS"
   [vla]="reasoning VLA"
   [vla_seal]="reasoning VLA + SEAL (oracle)"
-  [vla_seal_learned]="reasoning VLA + SEAL (learned verifier)"
+  [vla_seal_learned]="reasoning VLA + SEAL (learned verifier${LEARNED_THRESHOLD:+, threshold $LEARNED_THRESHOLD})"
 )
 METHODS="${METHODS:-$(IFS=,; echo "${ORDER[*]}")}"
 

@@ -39,7 +39,7 @@ METHODS = {
     "twin_vgps": ("twin + V-GPS", "value:policy=vla:policy_ckpt=twin:value_ckpt={value_ckpt}:k=10"),
     "vla": ("reasoning VLA", "base:policy=vla"),
     "vla_seal": ("reasoning VLA + SEAL (oracle)", "seal:policy=vla:k=10"),
-    "vla_seal_learned": ("reasoning VLA + SEAL (learned verifier)", "seal:policy=vla:k=10:verifier=learned"),
+    "vla_seal_learned": ("reasoning VLA + SEAL (learned verifier)", "seal:policy=vla:k=10:verifier=learned{threshold}"),
 }
 COMMON = {"render": "fast"}  # the script's shared method flag (--render fast)
 
@@ -91,8 +91,11 @@ _KIND_KEYS = ("method", "policy", "policy_ckpt", "k", "verifier", "model")
 
 
 def method_item(name: str, value_ckpt: str | None) -> str:
-    """The `--methods` item of a short name (the V-GPS one with its checkpoint filled in)."""
-    return METHODS[name][1].format(value_ckpt=value_ckpt or "VALUE_CKPT")
+    """The `--methods` item of a short name (the V-GPS one with its checkpoint filled in, the learned
+    verifier's with LEARNED_THRESHOLD's operating point when the script was given one)."""
+    threshold = os.environ.get("LEARNED_THRESHOLD", "")
+    return METHODS[name][1].format(value_ckpt=value_ckpt or "VALUE_CKPT",
+                                   threshold=f":threshold={threshold}" if threshold else "")
 
 
 def vgps_skip_reason(value_ckpt: str | None) -> str | None:

@@ -85,6 +85,10 @@ def test_dry_run_matches_plan_and_skips_vgps(tmp_path):
     # WORKERS runs trials in parallel; a bad value is refused with the names of the knobs
     two = _run(["bash", str(SCRIPT), "--dry-run"], env | {"WORKERS": "2"}, tmp_path)
     assert all("--workers 2 " in line for line in two.stdout.splitlines()), two.stdout
+    strict = _run(["bash", str(SCRIPT), "--dry-run"], env | {"LEARNED_THRESHOLD": "0.8"}, tmp_path)
+    assert "seal:policy=vla:k=10:verifier=learned:threshold=0.8" in strict.stdout
+    plan = json.loads(_run(["bash", str(SCRIPT), "--plan"], env | {"LEARNED_THRESHOLD": "0.8"}, tmp_path).stdout)
+    assert plan["suites"]["libero_10"]["methods"]["vla_seal_learned"]["method"].endswith(":threshold=0.8")
     zero = _run(["bash", str(SCRIPT), "--dry-run"], env | {"WORKERS": "0"}, tmp_path)
     assert zero.returncode == 2 and "WORKERS" in zero.stderr and "got '0'" in zero.stderr
 
