@@ -108,6 +108,27 @@ def test_bench_render_attributes_the_fast_modes_error_to_meshes(capsys):
         assert shares == sorted(shares, reverse=True) and 0 < sum(shares) <= 1.0 + 1e-6
 
 
+def test_bench_render_refuses_a_budget_that_is_not_looser(capsys):
+    from seal.cli import main
+
+    for bad in ("0.5", "x", "1"):
+        assert main(["bench", "render", "--tasks", "0", "--budgets", f"3,{bad}"]) == 2
+        assert "--budgets takes tolerance factors above 1" in capsys.readouterr().err
+
+
+@pytest.mark.slow  # ~2-4 min on a fresh machine (decimates the scene's meshes at the looser tolerance once)
+def test_bench_render_budgets_time_looser_meshes_against_the_shipped_ones(capsys):
+    out = _bench(capsys, "render", "--tasks", "0", "--budgets", "4")
+    rows = out["budgets"]["0"]
+    shipped = [r for r in rows if r["tolerance_x"] == 1.0 and r["multisampling"]]
+    looser = [r for r in rows if r["tolerance_x"] == 4.0 and r["multisampling"]]
+    assert len(rows) == 4 and len(shipped) == len(looser) == 1
+    assert looser[0]["faces"] < shipped[0]["faces"] and shipped[0]["agent"]["ms_ratio"] == 1.0
+    for camera in ("agent", "wrist"):
+        assert looser[0][camera]["psnr"] <= shipped[0][camera]["psnr"] + 0.5
+        assert 0 < looser[0][camera]["ms_ratio"] < 5
+
+
 @pytest.mark.slow  # ~80-120 s (starts a Ray cluster; the Ray backend keeps its own test in test_eval.py)
 def test_bench_eval(capsys):
     out = _bench(capsys, "eval", "--tasks", "5", "--trials", "1", "--k", "2", "--max-steps", "25")

@@ -5,6 +5,12 @@ stock, time per camera, and *where* the error is.
 (stock images have it), so the share of the time that anti-aliasing takes, and the quality it
 buys, stand beside each other.
 
+``--budgets 3,6``: the fast model rebuilt with its mesh tolerances (deviation and area) that many
+times looser, the budget a 64-px view might afford (issue 33): faces, PSNR against stock, and time
+per camera *timed interleaved with the shipped fast model* on the same state (``ms_ratio``: its
+time over the shipped model's), with and without multisampling. Comparing renderers one after
+another on a shared machine measures the load; taking turns frame by frame measures the renderers.
+
 The error of a fast frame is attributed to the geoms that stock draws at each pixel (MuJoCo's
 segmentation render of the stock model): the share of the squared error each mesh carries says
 which mesh to fix next, and whether it is texture or geometry. One state per task: the episode
@@ -114,11 +120,76 @@ def _one_task(spec, px: int) -> dict:
         fast.close()
 
 
+def _budget_rows(spec, px: int, factors: list[float], rounds: int = 15) -> list[dict]:
+    """Looser mesh budgets against the shipped fast model, timed taking turns (see the module doc)."""
+    import time
+
+    from seal.sim.fast_assets import FastRenderSettings, build_fast_model
+
+    stock = LiberoWorld(spec, render_mode="stock")
+    fast = LiberoWorld(spec, render_mode="fast")
+    renderers: dict[tuple[float, int], SceneRenderer] = {}
+    try:
+        actions = np.random.default_rng(0).uniform(-1, 1, (20, 7))
+        for w in (stock, fast):
+            w.reset(0)
+            w.step_chunk(actions)
+        base = FastRenderSettings()
+        xml = fast.scene_xml()
+        models = {1.0: fast.render_model}
+        for f in factors:
+            models[f] = build_fast_model(xml, FastRenderSettings(max_deviation=base.max_deviation * f,
+                                                                 max_area_change=base.max_area_change * f))
+        for f, model in models.items():
+            for samples in (model.vis.quality.offsamples, 0):
+                m = copy.deepcopy(model)
+                m.vis.quality.offsamples = samples
+                renderers[f, samples] = SceneRenderer(m, px)
+        cameras = ((AGENT_CAMERA, "agent"), (WRIST_CAMERA, "wrist"))
+        times = {key: {c: [] for c, _ in cameras} for key in renderers}
+        state = fast.render_state()
+        for _ in range(rounds):
+            for key, r in renderers.items():
+                for camera, _ in cameras:
+                    t0 = time.perf_counter()
+                    r.render(fast.model, fast.data, camera, state)
+                    times[key][camera].append(time.perf_counter() - t0)
+        ref = {camera: stock.render_raw((camera,), size=px)[camera] for camera, _ in cameras}
+        msaa = fast.render_model.vis.quality.offsamples
+        rows = []
+        for (f, samples), r in renderers.items():
+            row = {"tolerance_x": f, "multisampling": samples > 0, "faces": drawn_faces(r.model)}
+            for camera, name in cameras:
+                ms = 1000 * float(np.median(times[f, samples][camera]))
+                shipped = 1000 * float(np.median(times[1.0, msaa][camera]))
+                row[name] = {"psnr": psnr(ref[camera], r.render(fast.model, fast.data, camera, state)),
+                             "ms": round(ms, 2), "ms_ratio": round(ms / shipped, 3)}
+            rows.append(row)
+        return rows
+    finally:
+        for r in renderers.values():
+            r.close()
+        stock.close()
+        fast.close()
+
+
 def run(args) -> dict:
     px = getattr(args, "image_size", None) or 64
     if not 16 <= px <= 1024:
         raise InvalidInput(f"--image-size must be in 16..1024, got {px}")
     tasks = parse_task_ids(args.suite, args.tasks or "0,3,9")
+    factors = []
+    for text in filter(None, (t.strip() for t in (getattr(args, "budgets", None) or "").split(","))):
+        try:
+            factors.append(float(text))
+        except ValueError:
+            factors.append(float("nan"))
+        if not factors[-1] > 1.0:
+            raise InvalidInput(f"--budgets takes tolerance factors above 1 (how many times looser than the shipped "
+                               f"fast model's), e.g. 3,6; got {text!r}")
+    if factors:
+        return {"suite": args.suite, "px": px, "state": "init 0 after 20 seeded random actions",
+                "budgets": {str(t): _budget_rows(get_task(args.suite, t), px, factors) for t in tasks}}
     return {"suite": args.suite, "px": px,
             "state": "init 0 after 20 seeded random actions",
             "tasks": {str(t): _one_task(get_task(args.suite, t), px) for t in tasks}}

@@ -31,6 +31,9 @@ def add(sub) -> None:
                        help="runtime: scripted (state only), pixels (the expert reading both cameras every chunk, "
                             "a VLA's rendering without its network) or vla[:PATH]; steer/verifier-sweep: the policy "
                             "(default scripted); eval: the policy both methods run (default scripted, misaligned)")
+    bench.add_argument("--budgets", default=None, metavar="F[,F]",
+                       help="render: also the fast model with its mesh tolerances F times looser, timed taking "
+                            "turns with the shipped one (e.g. 3,6)")
     bench.add_argument("--image-size", type=COUNT, default=None, help="runtime: camera px for pixel policies (64); render: the size measured (64)")
     bench.add_argument("--render", default=None, choices=["stock", "fast"],
                        help="runtime: render model (default: fast for pixel policies)")

@@ -396,6 +396,10 @@ class LiberoWorld:
         (`seal.sim.view`), which may trail the physics by a substep."""
         return np.array(self._view.qpos)
 
+    def scene_xml(self) -> str:
+        """The scene's full MJCF, as robosuite compiled it (what the fast render model is built from)."""
+        return self._env.model.get_xml()
+
     @property
     def render_model(self) -> mujoco.MjModel:
         """The model cameras draw: the physics model itself (stock) or its decimated twin (fast)."""
@@ -405,7 +409,7 @@ class LiberoWorld:
             else:
                 from seal.sim.fast_assets import build_fast_model
 
-                self._render_model = build_fast_model(self._env.model.get_xml())
+                self._render_model = build_fast_model(self.scene_xml())
                 if self._camera_pose is not None:
                     _set_camera(self._render_model, AGENT_CAMERA, self._camera_pose)
         return self._render_model
