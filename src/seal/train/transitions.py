@@ -91,15 +91,8 @@ def episode_transitions(ep: Episode, goals: str = "both", small: np.ndarray | No
             e = min(s + ACTION_HORIZON, last + 1)  # the chunk never runs past its goal's window
             hit = reached and e == last + 1
             nxt = min(e, ep.length - 1)
-            rows["image"].append(small[s])
-            rows["state"].append(states[s])
-            rows["action"].append(chunk_of(ep.actions[s:e]))
-            rows["goal"].append(text)
-            rows["reward"].append(float(hit))
-            rows["done"].append(float(hit))
-            rows["next_image"].append(small[nxt])
-            rows["next_state"].append(states[nxt])
-            rows["to_goal"].append(len(starts) - j if reached else -1)
+            _add(rows, small, states, s, nxt, chunk_of(ep.actions[s:e]), text, hit,
+                 len(starts) - j if reached else -1)
     return _as_transitions(rows)
 
 
@@ -188,16 +181,23 @@ def _rollout_episode(ep: Episode, labels: dict, goals: str) -> Transitions:
         for k, j in enumerate(frames):
             hit = reached and k == len(frames) - 1
             nxt = min(j + 1, ep.length - 1)
-            rows["image"].append(small[j])
-            rows["state"].append(states[j])
-            rows["action"].append(chunk_of(labels["executed"][j]))
-            rows["goal"].append(text)
-            rows["reward"].append(float(hit))
-            rows["done"].append(float(hit))
-            rows["next_image"].append(small[nxt])
-            rows["next_state"].append(states[nxt])
-            rows["to_goal"].append(len(frames) - k if reached else -1)
+            _add(rows, small, states, j, nxt, chunk_of(labels["executed"][j]), text, hit,
+                 len(frames) - k if reached else -1)
     return _as_transitions(rows)
+
+
+def _add(rows: dict[str, list], small, states, frame: int, nxt: int, action, goal: str, hit: bool,
+         to_goal: int) -> None:
+    """One transition: the view and state at ``frame``, the chunk, its goal and reward, the view after."""
+    rows["image"].append(small[frame])
+    rows["state"].append(states[frame])
+    rows["action"].append(action)
+    rows["goal"].append(goal)
+    rows["reward"].append(float(hit))
+    rows["done"].append(float(hit))
+    rows["next_image"].append(small[nxt])
+    rows["next_state"].append(states[nxt])
+    rows["to_goal"].append(to_goal)
 
 
 def _as_transitions(rows: dict[str, list]) -> Transitions:
