@@ -184,8 +184,8 @@ def test_iql_config_refuses_bad_values_with_the_field_named(field, value, messag
     IQLConfig()  # the defaults pass
 
 
-def _rollout_collection(root, solved: list[bool]):
-    """A `seal demos dagger`-shaped collection without the simulator: synthetic 64-px frames, the
+def _rollout_collection(root, solved: list[bool], px: int = 64):
+    """A `seal demos dagger`-shaped collection without the simulator: synthetic ``px``-px frames, the
     expert's `now` label advancing through the plans, the executed actions of every boundary."""
     import dataclasses
 
@@ -197,11 +197,12 @@ def _rollout_collection(root, solved: list[bool]):
     from seal.policies.base import Reasoning
 
     episodes, rows_of = [], []
-    with LeRobotWriter(root / "dataset", fps=4, image_size=64) as w:
+    with LeRobotWriter(root / "dataset", fps=4, image_size=px) as w:
         for i, ok in enumerate(solved):
             ep = synthetic_episode(8, seed=i)
-            small = ep.agent_images[:, ::4, ::4][:, :64, :64]  # 56-px synthetic frames padded to 64
-            small = np.ascontiguousarray(np.pad(small, ((0, 0), (0, 8), (0, 8), (0, 0))))
+            small = ep.agent_images
+            if px == 64:  # 56-px synthetic frames padded to 64
+                small = np.ascontiguousarray(np.pad(small[:, ::4, ::4], ((0, 0), (0, 8), (0, 8), (0, 0))))
             ep = dataclasses.replace(ep, agent_images=small, wrist_images=255 - small,
                                      critical_frames=[-1] * len(PLANS),
                                      meta=ep.meta | {"success": ok, "dagger": {"ckpt": "test"}})
@@ -246,8 +247,8 @@ def test_rollout_transitions_reward_reached_goals_and_keep_failures(tmp_path):
 def test_value_trains_on_demonstrations_and_rollouts_and_refuses_old_collections(tmp_path, capsys):
     import pyarrow.parquet as pq
 
-    make_v21(tmp_path / "demos", [40, 35, 45])
-    _rollout_collection(tmp_path / "coll", [True, False, True, False, True])
+    make_v21(tmp_path / "demos", [40, 35, 45])  # 224-px demonstrations: rollouts of the same view size
+    _rollout_collection(tmp_path / "coll", [True, False, True, False, True], px=224)
     argv = ["train", "value", "--dataset", str(tmp_path / "demos"), "--rollouts", str(tmp_path / "coll"),
             "--out", str(tmp_path / "run"), "--steps", "20", "--batch", "16", "--holdout", "0.4"]
     assert main(argv) == 0
@@ -267,6 +268,9 @@ def test_value_trains_on_demonstrations_and_rollouts_and_refuses_old_collections
     pq.write_table(pq.read_table(labels).drop_columns(["executed"]), labels)
     assert main(argv[:-8] + ["--out", str(tmp_path / "run2"), "--steps", "5", "--holdout", "0.4"]) == 2
     assert "before DAgger kept the executed actions" in capsys.readouterr().err
+    _rollout_collection(tmp_path / "small", [True, False])  # 64-px views beside 224-px demonstrations: refused
+    assert main(argv[:4] + ["--rollouts", str(tmp_path / "small"), "--out", str(tmp_path / "run4")]) == 2
+    assert "64-px views, the demonstrations 224-px" in capsys.readouterr().err
     assert main(["train", "value", "--dataset", str(tmp_path / "demos"), "--rollouts", str(tmp_path / "nope"),
                  "--out", str(tmp_path / "run3")]) == 2
     assert "not a `seal demos dagger` collection" in capsys.readouterr().err

@@ -47,7 +47,11 @@ def train_value_on_dataset(dataset: Path, out: Path, *, goals: str, holdout: flo
     for path in rollouts:
         from seal.dagger import DATASET_DIR
 
-        splits[str(path)] = split_episodes(open_dataset(Path(path) / DATASET_DIR).num_episodes, holdout, cfg.seed)
+        rollout_reader = open_dataset(Path(path) / DATASET_DIR)
+        if rollout_reader.image_size != reader.image_size:  # the Q-function scores one view size at run time
+            raise InvalidInput(f"--rollouts {path} has {rollout_reader.image_size}-px views, the demonstrations "
+                               f"{reader.image_size}-px: train on rollouts of a policy that sees what the demonstrations show")
+        splits[str(path)] = split_episodes(rollout_reader.num_episodes, holdout, cfg.seed)
     total = n + sum(len(a) + len(b) for a, b in splits.values())
     say = progress or (lambda *a, **k: None)
     done = 0
