@@ -44,7 +44,7 @@ class LearnedOptions(VerifierOptions):
     # An operating point: with the VLA, a false pass costs SEAL an episode and a refusal costs a round
     # (docs/results.md, the noise sweeps), so a stricter cut than the checkpoint's 0.5 can pay.
     threshold: float | None = option(None, "learned: P(success) at or above which a verdict passes (default: "
-                                           "the checkpoint's)", type=RATE, parse=lambda text: _threshold(text),
+                                           "the checkpoint's)", type=RATE, parse=_threshold,
                                      later=True, strict=True)
 
     def weights(self):
