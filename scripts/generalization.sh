@@ -16,7 +16,8 @@
 #   SUITES       comma-separated subset of the six suites (default: all)
 #   TASKS        comma-separated task ids, in every suite run (default: all)
 #   METHODS      comma-separated subset of twin,twin_vgps,vla,vla_seal,vla_seal_learned (default: all)
-#   VALUE_CKPT   `seal train value` run directory for twin + V-GPS (unset: that method is skipped)
+#   VALUE_CKPT   twin + V-GPS's Q-function: a `seal train value` run directory or a shipped name
+#                (unset: the package's shipped one; one that does not load stops the script before a trial)
 #   LEARNED_THRESHOLD  the learned verifier's operating point for vla_seal_learned (unset: the checkpoint's;
 #                set, the method is another configuration, named with its threshold)
 #   MAX_STEPS    episode cap (--max-steps), for smoke tests only: it is not part of a method's
@@ -58,7 +59,7 @@ WORKERS="${WORKERS:-1}"
 ORDER=(twin twin_vgps vla vla_seal vla_seal_learned)
 declare -A ITEM=(
   [twin]="base:policy=vla:policy_ckpt=twin"
-  [twin_vgps]="value:policy=vla:policy_ckpt=twin:value_ckpt=${VALUE_CKPT}:k=10"
+  [twin_vgps]="value:policy=vla:policy_ckpt=twin${VALUE_CKPT:+:value_ckpt=$VALUE_CKPT}:k=10"
   [vla]="base:policy=vla"
   [vla_seal]="seal:policy=vla:k=10"
   [vla_seal_learned]="seal:policy=vla:k=10:verifier=learned${LEARNED_THRESHOLD:+:threshold=$LEARNED_THRESHOLD}"
@@ -100,17 +101,6 @@ wanted() { [[ ",$METHODS," == *",$1,"* ]]; }
 methods=()
 for m in "${ORDER[@]}"; do
   wanted "$m" || continue
-  if [ "$m" = twin_vgps ] && [ "$mode" != plan ]; then
-    if [ -z "$VALUE_CKPT" ]; then
-      echo "generalization.sh: skipping ${NAME[$m]}: VALUE_CKPT is not set. Train the V-GPS Q-function" \
-           "first (seal train value --dataset DEMOS --out RUN) and re-run with VALUE_CKPT=RUN." >&2
-      continue
-    elif [ ! -d "$VALUE_CKPT" ]; then
-      echo "generalization.sh: skipping ${NAME[$m]}: VALUE_CKPT=$VALUE_CKPT is not a directory" \
-           "(it must be a \`seal train value\` run directory)." >&2
-      continue
-    fi
-  fi
   methods+=("$m")
 done
 

@@ -36,7 +36,7 @@ SUITES = ("libero_10", "lang_rephrase", "lang_object_property", "visual_scene", 
 # short name -> (display name, `seal eval --methods` item); in the tables' order
 METHODS = {
     "twin": ("twin (pi0)", "base:policy=vla:policy_ckpt=twin"),
-    "twin_vgps": ("twin + V-GPS", "value:policy=vla:policy_ckpt=twin:value_ckpt={value_ckpt}:k=10"),
+    "twin_vgps": ("twin + V-GPS", "value:policy=vla:policy_ckpt=twin{value_ckpt}:k=10"),
     "vla": ("reasoning VLA", "base:policy=vla"),
     "vla_seal": ("reasoning VLA + SEAL (oracle)", "seal:policy=vla:k=10"),
     "vla_seal_learned": ("reasoning VLA + SEAL (learned verifier)", "seal:policy=vla:k=10:verifier=learned{threshold}"),
@@ -91,21 +91,17 @@ _KIND_KEYS = ("method", "policy", "policy_ckpt", "k", "verifier", "model")
 
 
 def method_item(name: str, value_ckpt: str | None) -> str:
-    """The `--methods` item of a short name (the V-GPS one with its checkpoint filled in, the learned
-    verifier's with LEARNED_THRESHOLD's operating point when the script was given one)."""
+    """The `--methods` item of a short name (the V-GPS one with VALUE_CKPT when the script was given
+    one, else the package's shipped Q-function; the learned verifier's with LEARNED_THRESHOLD's
+    operating point when the script was given one)."""
     threshold = os.environ.get("LEARNED_THRESHOLD", "")
-    return METHODS[name][1].format(value_ckpt=value_ckpt or "VALUE_CKPT",
+    return METHODS[name][1].format(value_ckpt=f":value_ckpt={value_ckpt}" if value_ckpt else "",
                                    threshold=f":threshold={threshold}" if threshold else "")
 
 
 def vgps_skip_reason(value_ckpt: str | None) -> str | None:
-    """Why the twin + V-GPS method cannot run, or None when it can. The first two are the script's
-    own tests (it skips the method); a directory the method parser refuses stops the script."""
-    if not value_ckpt:
-        return ("VALUE_CKPT is not set: train the V-GPS Q-function first (`seal train value --dataset DEMOS "
-                "--out RUN`) and set VALUE_CKPT=RUN")
-    if not Path(value_ckpt).is_dir():
-        return f"VALUE_CKPT={value_ckpt} is not a directory (a `seal train value` run directory)"
+    """Why the twin + V-GPS method cannot run (its Q-function does not load), or None when it can.
+    The script itself stops on such a method before its first trial, with the same message."""
     from seal.steer.method import parse_methods
 
     try:

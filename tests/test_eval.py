@@ -80,8 +80,8 @@ def test_parse_methods_and_config_hashes():
     assert MethodSpec(k=3).config_hash != MethodSpec(k=10).config_hash
     with pytest.raises(InvalidInput, match="valid: base, random, value, seal"):
         parse_methods("sael")
-    with pytest.raises(InvalidInput, match="value_ckpt=RUN_DIR"):
-        parse_methods("value")
+    with pytest.raises(InvalidInput, match="no V-GPS checkpoint at no_such_run"):
+        parse_methods("value:value_ckpt=no_such_run")
     with pytest.raises(InvalidInput, match="name=value"):
         parse_methods("seal:kk=3")
     with pytest.raises(InvalidInput, match="must be an integer"):

@@ -45,11 +45,11 @@ def test_plan_counts_trials_and_hours(tmp_path):
             assert m["trials"] == tasks * n and m["to_run"] == tasks * n and m["done"] == 0
             assert m["cpu_hours"] > 0 and m["s_per_trial"] > 0 and m["cost_source"] == "default"
         assert entry["cpu_hours"] > 0
-    # without a V-GPS checkpoint that method is planned but not run, and says why
-    assert "VALUE_CKPT" in plan["skipped"]["twin_vgps"]
-    assert not plan["suites"]["libero_10"]["methods"]["twin_vgps"]["runs"]
+    # without VALUE_CKPT, twin + V-GPS runs the package's shipped Q-function: nothing is skipped
+    assert plan["skipped"] == {}
+    assert plan["suites"]["libero_10"]["methods"]["twin_vgps"]["method"] == "value:policy=vla:policy_ckpt=twin:k=10"
     runs = sum(m["trials"] for e in plan["suites"].values() for m in e["methods"].values() if m["runs"])
-    assert plan["total_trials"] == runs == 4 * (5 * 10 * 2 + 13 * 4)
+    assert plan["total_trials"] == runs == 5 * (5 * 10 * 2 + 13 * 4)
     assert plan["total_cpu_hours"] > 0
     # SEAL costs more per trial than the policy alone
     l10 = plan["suites"]["libero_10"]["methods"]
@@ -64,13 +64,11 @@ def test_plan_counts_trials_and_hours(tmp_path):
                - column["eval_cpu_hours"]) < 0.2
 
 
-def test_dry_run_matches_plan_and_skips_vgps(tmp_path):
+def test_dry_run_matches_plan(tmp_path):
     """The script and the plan helper name the same method strings in the same order."""
     env = _env(DB=str(tmp_path / "g.db"), TRIALS="2", COMP_TRIALS="4")
     dry = _run(["bash", str(SCRIPT), "--dry-run"], env, tmp_path)
     assert dry.returncode == 0, dry.stderr
-    # no VALUE_CKPT: a clear line saying so, and the other methods go on
-    assert "skipping twin + V-GPS: VALUE_CKPT is not set" in dry.stderr and "seal train value" in dry.stderr
     plan = json.loads(_run(["bash", str(SCRIPT), "--plan"], env, tmp_path).stdout)
     want = [(s, m["method"], e["trials_per_task"]) for s, e in plan["suites"].items()
             for m in e["methods"].values() if m["runs"]]
@@ -81,7 +79,7 @@ def test_dry_run_matches_plan_and_skips_vgps(tmp_path):
         got += [(words[words.index("--suite") + 1], method, int(words[words.index("--trials") + 1]))
                 for method in words[words.index("--methods") + 1].split(",")]
         assert "--render fast --workers 1 --video none" in line and str(tmp_path / "g.db") in line
-    assert got == want and len(got) == 6 * 4 and len(lines) == 6
+    assert got == want and len(got) == 6 * 5 and len(lines) == 6
     # WORKERS runs trials in parallel; a bad value is refused with the names of the knobs
     two = _run(["bash", str(SCRIPT), "--dry-run"], env | {"WORKERS": "2"}, tmp_path)
     assert all("--workers 2 " in line for line in two.stdout.splitlines()), two.stdout

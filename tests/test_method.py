@@ -31,6 +31,7 @@ SHIPPED_VLA = Path(__file__).resolve().parents[1] / "src/seal/policies/vla/check
 SHIPPED_VERIFIER = Path(__file__).resolve().parents[1] / "src/seal/verify/checkpoints/learned"
 EXPERT_VERIFIER = SHIPPED_VERIFIER.parent / "expert"  # the first shipped one, `learned:expert`
 VLA_ROUNDS_VERIFIER = SHIPPED_VERIFIER.parent / "vla_rounds"  # the second, `learned:vla_rounds`
+SHIPPED_VALUE = Path(__file__).resolve().parents[1] / "src/seal/value/checkpoints/l10_demos"  # V-GPS default
 
 
 def _shipped_digests() -> dict:
@@ -42,7 +43,9 @@ def _shipped_digests() -> dict:
     learned = {name: hashlib.sha1((d / "model.safetensors").read_bytes() + (d / "config.json").read_bytes()).hexdigest()[:12]
                for name, d in (("learned", SHIPPED_VERIFIER), ("learned:expert", EXPERT_VERIFIER),
                                ("learned:vla_rounds", VLA_ROUNDS_VERIFIER))}
-    return {**vla, **learned}
+    value = hashlib.sha1((SHIPPED_VALUE / "value.safetensors").read_bytes()
+                         + (SHIPPED_VALUE / "value.json").read_bytes()).hexdigest()[:12]
+    return {**vla, **learned, "value": value}
 
 
 def _fixed_value_checkpoint(tmp_path: Path) -> Path:
@@ -65,7 +68,8 @@ def test_config_hashes_of_plugins_are_kept(tmp_path):
     # way, so stores made with it keep finding their trials after the round-2 VLA and its twin shipped.
     assert _shipped_digests() == {"reason": "563400068f48", "twin": "cd9f0d7bdb3c", "reason_r0": "009dcdd7fb35",
                                   "twin_r0": "14bb7098169e", "learned": "c0646b399509",
-                                  "learned:expert": "8818a7a2714f", "learned:vla_rounds": "808648b1ea87"}
+                                  "learned:expert": "8818a7a2714f", "learned:vla_rounds": "808648b1ea87",
+                                  "value": "a353a1507bf5"}
     value = _fixed_value_checkpoint(tmp_path)
     cases = [  # (spec, config hash, label, canonical form: its keys in this order)
         (MethodSpec(policy="vla:reason_r0"), "0c35fb9f53", "seal[policy=vla,render=fast,policy_ckpt=009dcdd7fb35]",
@@ -199,7 +203,7 @@ def test_registries_name_the_valid_choices():
     (["run", "--mismatch", "1.3,0.8"], "--mismatch wants three numbers"),
     (["run", "--k", "x"], "argument --k: invalid int value"),
     (["run", "--policy", "octo"], "unknown policy 'octo'"),
-    (["run", "--method", "value"], "needs a trained V-GPS checkpoint"),
+    (["run", "--method", "value", "--value-ckpt", "{db}"], "no V-GPS checkpoint at"),
     (["eval", "--db", "{db}", "--tasks", "0,x"], "--tasks must be comma-separated task ids"),
     (["eval", "--db", "{db}", "--tasks", "0,10"], "unknown task id 10"),
     (["eval", "--db", "{db}", "--methods", "seal:k=x"], "k='x' must be an integer (its default: k=10)"),

@@ -124,6 +124,58 @@ def test_train_value_command_on_a_dataset(tmp_path, capsys):
     assert (tmp_path / "run/checkpoint.pt").is_file()
 
 
+def test_a_shipped_q_function_loads_by_name_and_a_damaged_run_never_ships(tmp_path, monkeypatch, capsys):
+    import seal.value
+    from seal.value import DEFAULT_SHIPPED, VALUE_CHECKPOINT, value_directory
+    from seal.value.ship import ship
+
+    make_v21(tmp_path / "ds", [40, 35, 45])
+    run = tmp_path / "run"
+    assert main(["train", "value", "--dataset", str(tmp_path / "ds"), "--out", str(run), "--steps", "10",
+                 "--batch-size", "16", "--holdout", "0.34"]) == 0
+    capsys.readouterr()
+    root = tmp_path / "checkpoints"
+    monkeypatch.setattr(seal.value, "SHIPPED_DIR", root)
+    with pytest.raises(InvalidInput, match=f"no shipped V-GPS checkpoint '{DEFAULT_SHIPPED}'.*shipped: none"):
+        value_directory("")
+    target = ship(run, DEFAULT_SHIPPED, root=root, note="a test")
+    # '' and the name both find it; its digest is the run's, so stores name both the same way
+    assert value_directory("") == value_directory(DEFAULT_SHIPPED) == target
+    assert VALUE_CHECKPOINT.digest(target) == VALUE_CHECKPOINT.digest(run)
+    manifest = json.loads((target / "manifest.json").read_text())
+    summary = json.loads((run / "summary.json").read_text())
+    assert manifest["shipped"]["note"] == "a test" and manifest["training"]["heldout"] == summary["heldout"]
+    assert VGPSScorer.load("").image_size == VGPSScorer.load(run).image_size
+    with pytest.raises(InvalidInput, match="holds a shipped Q-function already"):
+        ship(run, DEFAULT_SHIPPED, root=root)
+    # one flipped byte in the run: refused before anything is copied
+    weights = run / "value.safetensors"
+    raw = bytearray(weights.read_bytes())
+    raw[-1] ^= 1
+    weights.write_bytes(bytes(raw))
+    with pytest.raises(InvalidInput, match="manifest"):
+        ship(run, "other", root=root)
+    assert sorted(p.name for p in root.iterdir()) == [DEFAULT_SHIPPED]
+
+
+def test_the_shipped_q_function_loads_on_a_fresh_clone_and_scores_the_policy_view():
+    """What twin + V-GPS runs when no checkpoint is named: checked against its manifest, trained on
+    the 64-px views the VLAs see, scoring K chunks to K finite numbers."""
+    from seal.value import DEFAULT_SHIPPED, value_directory
+
+    path = value_directory("")
+    assert path.name == DEFAULT_SHIPPED
+    manifest = json.loads((path / "manifest.json").read_text())
+    assert manifest["training"]["heldout"]["transitions"] > 0 and manifest["shipped"]["name"] == DEFAULT_SHIPPED
+    scorer = VGPSScorer.load("")
+    assert scorer.image_size == 64
+    obs = _Obs(np.zeros(8))
+    obs.agent = np.random.default_rng(0).integers(0, 256, (64, 64, 3), dtype=np.uint8)
+    scores = scorer.score(obs, np.random.default_rng(1).uniform(-1, 1, (10, 16, 7)).astype(np.float32),
+                          "put both the alphabet soup and the tomato sauce in the basket")
+    assert scores.shape == (10,) and np.isfinite(scores).all() and np.ptp(scores) > 0
+
+
 def test_value_function_from_a_64px_dataset_scores_the_policy_view(tmp_path):
     """A VLA recorded at 64 px: the value function trains on those frames (area-resized to 56) and
     asks the loop for 64-px views, so the policy's own renders serve it."""

@@ -67,6 +67,15 @@ def write_manifest(directory: Path, *, kind: str, files: list[str], format: int 
     return record
 
 
+def amend_manifest(directory: Path, fields: dict) -> dict:
+    """Add fields to a manifest (where shipped weights came from, what reports call them). The manifest
+    vouches for the other files, not for itself, so digests and verification stay as they were."""
+    path = Path(directory) / MANIFEST
+    manifest = json.loads(path.read_text()) | fields
+    atomic_write(path, lambda p: p.write_text(json.dumps(manifest, indent=2) + "\n"))
+    return manifest
+
+
 def read_manifest(directory: Path, *, kind: str) -> dict:
     """The parsed manifest of a checkpoint of ``kind`` (nothing about its files is checked yet)."""
     directory = Path(directory)

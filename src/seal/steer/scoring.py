@@ -15,15 +15,10 @@ from typing import Callable, ClassVar, Protocol
 
 import numpy as np
 
-from seal.checkpoint import CheckpointFormat
-from seal.errors import InvalidInput
 from seal.options import Options, option
 from seal.registry import Plugin, Registry
 from seal.sim.observation import IMAGE_SIZE, Observation
-from seal.value import VALUE_FILES, VALUE_KIND, value_directory
-
-# what names a value checkpoint in a results store: sha1 of its verified weights and config
-VALUE_CHECKPOINT = CheckpointFormat(VALUE_KIND, required=VALUE_FILES, named_by=VALUE_FILES, algorithm="sha1")
+from seal.value import VALUE_CHECKPOINT, value_directory
 
 
 class ChunkScorer(Protocol):
@@ -41,15 +36,11 @@ class ValueOptions(Options):
     new method)."""
 
     checkpoint: ClassVar[str] = "value_ckpt"
-    value_ckpt: str = option("", "value: checkpoint file or run directory (`seal train value`)")
+    value_ckpt: str = option("", "value: a `seal train value` run directory or a shipped name "
+                                 "(default: the shipped Q-function)")
 
     def weights(self):
         return VALUE_CHECKPOINT, value_directory(self.value_ckpt)
-
-    def check_in_use(self, method: str) -> None:
-        if not self.value_ckpt:
-            raise InvalidInput(f"method {method!r} needs a trained V-GPS checkpoint: {method}:value_ckpt=RUN_DIR "
-                               "(train one with `seal train value`)")
 
 
 # factory(checkpoint path) -> ChunkScorer

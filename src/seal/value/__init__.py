@@ -5,13 +5,16 @@
 - here: the checkpoint directory's layout, which the loop's config hash reads without PyTorch.
 
 Like a policy or a verifier, it sits below the loop that names it in a registry
-(``SCORERS["value"]``); `seal.train.vgps` trains it.
+(``SCORERS["value"]``); `seal.train.vgps` trains it. The package ships a trained Q-function in
+``checkpoints/`` (``value_ckpt`` unset, or its name), so a fresh clone runs V-GPS without training;
+`seal.value.ship` puts a `seal train value` run there.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
+from seal.checkpoint import CheckpointFormat
 from seal.errors import InvalidInput
 
 # A V-GPS checkpoint directory (`seal train value` writes one into its run directory): the
@@ -19,10 +22,31 @@ from seal.errors import InvalidInput
 VALUE_KIND = "seal-vgps"
 VALUE_WEIGHTS, VALUE_CONFIG = "value.safetensors", "value.json"
 VALUE_FILES = (VALUE_WEIGHTS, VALUE_CONFIG)
+# what names a value checkpoint in a results store: sha1 of its verified weights and config
+VALUE_CHECKPOINT = CheckpointFormat(VALUE_KIND, required=VALUE_FILES, named_by=VALUE_FILES, algorithm="sha1")
+
+SHIPPED_DIR = Path(__file__).resolve().parent / "checkpoints"
+# The Q-function V-GPS uses when no checkpoint is named: IQL on LIBERO-10 demonstrations (the paper's
+# recipe: offline demonstrations only). Other directories of checkpoints/ load by their names.
+DEFAULT_SHIPPED = "l10_demos"
 
 
-def value_directory(path: str | Path) -> Path:
-    """A V-GPS checkpoint directory from a run directory or one of its files."""
+def shipped() -> dict[str, Path]:
+    """The package's value checkpoints by name (read from the package's files on each call)."""
+    return {p.name: p for p in sorted(SHIPPED_DIR.glob("*/")) if not p.name.startswith(".")}
+
+
+def value_directory(path: str | Path = "") -> Path:
+    """A V-GPS checkpoint directory from '' (the shipped default), a shipped name, a run directory
+    or one of its files."""
+    names = shipped()
+    name = str(path) or DEFAULT_SHIPPED
+    if name in names or not str(path):
+        if name not in names:
+            raise InvalidInput(f"no shipped V-GPS checkpoint {name!r} in {SHIPPED_DIR} (shipped: "
+                               f"{', '.join(names) or 'none'}); train one with `seal train value` and pass "
+                               "value_ckpt=RUN_DIR")
+        return names[name]
     p = Path(path)
     p = p.parent if p.is_file() else p
     if not (p / VALUE_WEIGHTS).is_file() and not (p / "manifest.json").is_file():

@@ -19,7 +19,7 @@ import shutil
 from datetime import date
 from pathlib import Path
 
-from seal.checkpoint import MANIFEST, atomic_write
+from seal.checkpoint import MANIFEST, amend_manifest
 from seal.errors import InvalidInput
 from seal.policies.vla.locate import CHECKPOINT, FILES, SHIPPED_DIR, resolve_checkpoint
 
@@ -79,7 +79,7 @@ def ship(run: str | Path, name: str, *, keep_as: str | None = None, label: str |
             raise InvalidInput(f"{kept} exists already; choose another name to keep {target} under")
         shutil.move(str(target), str(kept))
         if keep_label:
-            _amend(kept, {"shipped": {**_read(kept).get("shipped", {}), "label": keep_label,
+            amend_manifest(kept, {"shipped": {**_read(kept).get("shipped", {}), "label": keep_label,
                                       "replaced_by": chain[0]["digest"], "replaced_on": date.today().isoformat()}})
     staging = root / f".{name}.staging"
     shutil.rmtree(staging, ignore_errors=True)
@@ -91,7 +91,7 @@ def ship(run: str | Path, name: str, *, keep_as: str | None = None, label: str |
         shipped["label"] = label
     if note:
         shipped["note"] = note
-    _amend(staging, {"shipped": shipped, "lineage": chain})
+    amend_manifest(staging, {"shipped": shipped, "lineage": chain})
     CHECKPOINT.digest(staging)  # the copy is whole before it takes the name
     staging.rename(target)
     return target
@@ -99,10 +99,3 @@ def ship(run: str | Path, name: str, *, keep_as: str | None = None, label: str |
 
 def _read(directory: Path) -> dict:
     return json.loads((directory / MANIFEST).read_text())
-
-
-def _amend(directory: Path, fields: dict) -> None:
-    """Add fields to a manifest (it vouches for the other files, not for itself, so the weights'
-    digest and every verification stay as they were)."""
-    manifest = _read(directory) | fields
-    atomic_write(directory / MANIFEST, lambda p: p.write_text(json.dumps(manifest, indent=2) + "\n"))
