@@ -271,19 +271,32 @@ def test_lift_by_suite_and_the_learned_verifiers_share_of_the_oracles(tmp_path):
                     store.add(TrialRow(method=configs[name]["method"], config_hash=_config_hash(configs[name]),
                                        suite=suite, task=task, trial=t, init_index=t, seed=t, success=t in won,
                                        steps=50, wall_s=1.0))
+        # the learned verifier at another operating point is still the oracle's SEAL with another
+        # verifier: its share is taken against the same oracle rows (here: the same wins, the same share)
+        strict = {**configs[LEARNED], "threshold": 0.8}
+        store.register_method(_config_hash(strict), strict["method"], strict)
+        for (suite, task), wins in LIFT_WINS.items():
+            for t in range(4):
+                store.add(TrialRow(method=strict["method"], config_hash=_config_hash(strict), suite=suite, task=task,
+                                   trial=t, init_index=t, seed=t, success=t in wins[LEARNED], steps=50, wall_s=1.0))
     report = write_report(db, tmp_path / "report", episodes=False)
     by_name = {p.name: p for p in report.csv}
+    rows = list(csv.DictReader(by_name["share_of_oracle_lift.csv"].read_text().splitlines()))
+    at_80 = {r["suite"]: r for r in rows if r["seal_config_hash"] == _config_hash(strict)}
+    assert float(at_80["libero_10"]["share"]) == 0.6 and at_80["libero_10"]["oracle"] == ORACLE
     lifts = {(r["suite"], r["seal"]): r for r in csv.DictReader(by_name["lift_by_suite.csv"].read_text().splitlines())}
     # Oracle: LIBERO-10 6/8 vs 1/8 -> +62.5 pp; Lang-Rephrase 2/8 vs 1/8 -> +12.5 pp, 0.2x of LIBERO-10's.
     assert float(lifts["libero_10", ORACLE]["lift_pp"]) == 62.5 and lifts["libero_10", ORACLE]["ratio"] == ""
     assert float(lifts["lang_rephrase", ORACLE]["lift_pp"]) == 12.5
     assert float(lifts["lang_rephrase", ORACLE]["ratio"]) == 0.2
+    # the threshold is the verifier's, not the policy's: the strict configuration has the same base
+    assert float(lifts["libero_10", "reasoning VLA + SEAL (learned verifier, threshold 0.8)"]["lift_pp"]) == 37.5
     md = report.markdown.read_text()
     row = next(r for r in _md_table(md, "SEAL's lift by suite") if r[:2] == ["lang_rephrase", ORACLE])
     assert row[-2:] == ["0.20x", "smaller"]
     # Learned verifier: LIBERO-10 4/8 -> (4 - 1) / (6 - 1) = 0.6 of the oracle's lift; Lang-Rephrase
     # 2/8 -> (2 - 1) / (2 - 1) = 1.0; both suites pooled: (6 - 2) / (8 - 2).
-    shares = {r["suite"]: r for r in csv.DictReader(by_name["share_of_oracle_lift.csv"].read_text().splitlines())}
+    shares = {r["suite"]: r for r in rows if r["seal"] == LEARNED}
     assert float(shares["libero_10"]["share"]) == 0.6 and float(shares["lang_rephrase"]["share"]) == 1.0
     assert abs(float(shares["all"]["share"]) - 4 / 6) < 1e-3 and shares["all"]["trials"] == "16"
     assert float(shares["libero_10"]["ci_low"]) <= 0.6 <= float(shares["libero_10"]["ci_high"])

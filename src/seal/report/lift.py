@@ -18,13 +18,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from seal.report.data import MethodInfo, ReportData
-from seal.report.paper_layout import PaperLayout, base_of
+from seal.report.paper_layout import VERIFIER_KEYS, PaperLayout, base_of
 from seal.report.stats import PairedDifference, paired_difference
 from seal.report.tables import Table, num, to_csv
 
 IN_DISTRIBUTION = "libero_10"
-# what distinguishes one verifier from another in a SEAL configuration
-VERIFIER_KEYS = ("verifier", "model", "false_positive", "false_negative")
 BOOTSTRAP_DRAWS = 2000
 
 

@@ -16,6 +16,7 @@ from seal.report.paper import PAPER_NAMES, PAPER_ORDER, TABLES, PaperResults
 from seal.report.stats import PairedDifference, paired_difference
 from seal.report.tables import (COMMON_NOTE, SuccessTable, Table, cell_text, num, row_name, success_table, to_csv,
                                  usual_trials)
+from seal.verify import VERIFIERS
 
 OOD_SUITES = ("lang_rephrase", "lang_object_property", "visual_scene", "visual_viewpoint")
 SECTIONS = (("Table II layout: in distribution (LIBERO-10)", ("libero_10",)),
@@ -23,8 +24,10 @@ SECTIONS = (("Table II layout: in distribution (LIBERO-10)", ("libero_10",)),
             ("Table VIII layout: behavior composition", ("composition",)))
 # Settings only a steering method has: without them (and as method "base") a SEAL configuration is
 # the unsteered configuration it is compared with.
-STEERING_ONLY = ("k", "verifier", "model", "false_positive", "false_negative", "rounds", "check_every", "pick",
-                 "verify_order", "done_check")
+# what tells one verifier from another: its name and every option some verifier plug-in declares (a
+# learned verifier's threshold, a VLM's model, injected error rates)
+VERIFIER_KEYS = frozenset({"verifier"} | VERIFIERS.option_names())
+STEERING_ONLY = frozenset({"k", "rounds", "check_every", "pick", "verify_order", "done_check"}) | VERIFIER_KEYS
 
 
 @dataclass
