@@ -169,6 +169,10 @@ def test_the_shipped_q_function_loads_on_a_fresh_clone_and_scores_the_policy_vie
     assert manifest["training"]["heldout"]["transitions"] > 0 and manifest["shipped"]["name"] == DEFAULT_SHIPPED
     scorer = VGPSScorer.load("")
     assert scorer.image_size == 64
+    from seal.steer.method import parse_methods
+
+    (spec,) = parse_methods("value:policy=vla:policy_ckpt=twin:k=10")  # what generalization.sh runs
+    assert spec.label.startswith(f"value[ckpt={DEFAULT_SHIPPED},")
     obs = _Obs(np.zeros(8))
     obs.agent = np.random.default_rng(0).integers(0, 256, (64, 64, 3), dtype=np.uint8)
     scores = scorer.score(obs, np.random.default_rng(1).uniform(-1, 1, (10, 16, 7)).astype(np.float32),

@@ -210,8 +210,8 @@ class MethodSpec(LoopSettings):
         mine = self.canonical()
         extra = [f"{k}={_show(v)}" for k, v in mine.items() if k != "method" and default.get(k) != v]
         extra += [f"{k}={legacy}" for k, legacy in self._legacy().items() if k in default and k not in mine]
-        if needed:  # which weights, by their run directory's name
-            extra.insert(0, f"ckpt={Path(self.scorer_checkpoint).name}")
+        if needed:  # which weights, by their run directory's name (none given: the shipped one's)
+            extra.insert(0, f"ckpt={Path(self.scorer_checkpoint).name or self.scorer_options.weights()[1].name}")
         return self.method + (f"[{','.join(extra)}]" if extra else "")
 
     def _legacy(self) -> dict:
