@@ -39,9 +39,8 @@ def shipped() -> dict[str, Path]:
 def value_directory(path: str | Path = "") -> Path:
     """A V-GPS checkpoint directory from '' (the shipped default), a shipped name, a run directory
     or one of its files."""
-    names = shipped()
-    name = str(path) or DEFAULT_SHIPPED
-    if name in names or not str(path):
+    names, name = shipped(), str(path) or DEFAULT_SHIPPED
+    if not str(path) or name in names:
         if name not in names:
             raise InvalidInput(f"no shipped V-GPS checkpoint {name!r} in {SHIPPED_DIR} (shipped: "
                                f"{', '.join(names) or 'none'}); train one with `seal train value` and pass "
