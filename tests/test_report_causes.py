@@ -73,3 +73,11 @@ def test_each_failure_gets_its_first_cause(tmp_path):
                             "crashed": 1, "failures_without_trace": 1}
     md = report.markdown.read_text()
     assert "### Why episodes failed" in md and "had no trace on disk" in md
+    # the passes SEAL committed, solved trials too: (T,T)+(T,F), (T,F), (T,T)+(F,F), and the success's (T,F):
+    # 5 passes, 2 held; the crashed and the trace-less trial are left out, and a base has no such row
+    path = next(p for p in report.csv if p.name == "committed_passes.csv")
+    (row,) = list(csv.DictReader(path.read_text().splitlines()))
+    assert row["config_hash"] == SEAL.config_hash
+    assert (row["trials"], row["committed_passes"], row["held"], row["trials_without_trace"]) == ("6", "5", "2", "2")
+    assert "| libero_10 | scripted expert + SEAL (oracle) | 6 | 5 | 2 | 0.400 [0.118, 0.769] |" in md
+    assert "2 trial(s) had no trace on disk" in md

@@ -27,6 +27,7 @@ from functools import cache
 from seal.errors import InvalidInput
 from seal.eval.store import TrialRow
 from seal.report.data import MethodInfo, ReportData, succeeded
+from seal.report.stats import wilson
 from seal.report.tables import Table, to_csv
 
 CAUSES = ("misread", "verifier passed a miss", "false claim of completion", "no candidate passed", "out of steps",
@@ -66,11 +67,13 @@ def plan_reads_goal(suite: str, task: int, plans: list[str]) -> bool | None:
     return goal <= _achieved(list(plans), names)
 
 
-def _verifier_passed_a_miss(data: ReportData, row: TrialRow) -> bool | None:
-    """Did the verifier accept a commit whose sub-plan did not hold? None: no trace on disk."""
+def _commits(data: ReportData, row: TrialRow) -> list[tuple[bool, bool | None]] | None:
+    """(the verifier passed it, its sub-plan held by simulator truth or None if not audited) for every
+    commit in the trial's trace. None: no trace on disk."""
     trace = data.resolve(row.trace_path)
     if trace is None:
         return None
+    out = []
     with open(trace) as f:
         for line in f:
             if '"commit"' not in line:
@@ -79,10 +82,15 @@ def _verifier_passed_a_miss(data: ReportData, row: TrialRow) -> bool | None:
                 event = json.loads(line)
             except ValueError:  # a line cut off by a killed run
                 continue
-            verdict = event.get("verdict") or {}
-            if event.get("event") == "commit" and verdict.get("success") is True and event.get("aligned") is False:
-                return True
-    return False
+            if event.get("event") == "commit":
+                out.append(((event.get("verdict") or {}).get("success") is True, event.get("aligned")))
+    return out
+
+
+def _verifier_passed_a_miss(data: ReportData, row: TrialRow) -> bool | None:
+    """Did the verifier accept a commit whose sub-plan did not hold? None: no trace on disk."""
+    commits = _commits(data, row)
+    return None if commits is None else any(passed and held is False for passed, held in commits)
 
 
 def cause_of(data: ReportData, row: TrialRow, verifies: bool) -> tuple[str, bool]:
@@ -154,3 +162,55 @@ def cause_csv(rows: list[CauseRow]) -> str:
                    "failures_without_trace"],
                   [[r.suite, r.method.label, r.method.config_hash, r.trials, r.failures,
                     *[r.counts[c] for c in CAUSES], r.no_trace] for r in rows])
+
+
+# ---- the passes SEAL acted on -----------------------------------------------------------------------
+@dataclass
+class PassRow:
+    suite: str
+    method: MethodInfo
+    trials: int
+    passes: int  # audited commits the verifier had passed
+    held: int  # of those, sub-plans that held by simulator truth
+    no_trace: int  # trials whose trace was not on disk
+
+
+def pass_rows(data: ReportData) -> list[PassRow]:
+    """Per suite and SEAL configuration, over every trial (solved or not): how many of the passes the
+    loop committed held."""
+    out = []
+    for suite in data.suites:
+        for m in data.methods_in(suite):
+            if m.method != "seal":
+                continue
+            rows = [r for r in data.rows if r.suite == suite and r.config_hash == m.config_hash]
+            traced = [c for c in (_commits(data, r) for r in rows) if c is not None]
+            audited = [held for commits in traced for passed, held in commits if passed and held is not None]
+            out.append(PassRow(suite, m, len(rows), len(audited), sum(audited), len(rows) - len(traced)))
+    return out
+
+
+def pass_display(rows: list[PassRow]) -> Table:
+    def precision(r: PassRow) -> str:
+        if not r.passes:
+            return "-"
+        low, high = wilson(r.held, r.passes)
+        return f"{r.held / r.passes:.3f} [{low:.3f}, {high:.3f}]"
+
+    body = [[r.suite, r.method.label, str(r.trials), str(r.passes), str(r.held), precision(r)] for r in rows]
+    notes = ["Every commit of a passing candidate whose sub-plan the simulator audited, in solved and failed trials; "
+             "held: its goal atoms held in the committed state. Precision with a Wilson 95% interval. SEAL commits "
+             "the first candidate of a round that passes, so a verifier's false passes are selected for: this "
+             "precision sits below the same verifier's precision on single cases (`seal bench verifier`). The "
+             "oracle's passes hold by construction."]
+    missing = sum(r.no_trace for r in rows)
+    if missing:
+        notes.append(f"{missing} trial(s) had no trace on disk and are left out.")
+    return Table("The passes SEAL committed: how many held", ["Suite", "Method", "trials", "committed passes", "held",
+                                                              "precision"], body, set(), notes, left=2)
+
+
+def pass_csv(rows: list[PassRow]) -> str:
+    return to_csv(["suite", "method", "config_hash", "trials", "committed_passes", "held", "trials_without_trace"],
+                  [[r.suite, r.method.label, r.method.config_hash, r.trials, r.passes, r.held, r.no_trace]
+                   for r in rows])
