@@ -28,8 +28,11 @@ def test_a_plan_is_read_against_the_goal():
 
 
 def _trace(path, commits):
+    """Commits in plan order: the first for the plan's first sub-plan (a pick), the second for its second (a place)."""
     path.parent.mkdir(parents=True)
-    events = [{"event": "commit", "slot": 0, "verdict": {"success": ok}, "aligned": aligned} for ok, aligned in commits]
+    events = [e for i, (ok, aligned) in enumerate(commits)
+              for e in ({"event": "subplan", "step": 0, "text": RIGHT[i]},
+                        {"event": "commit", "slot": 0, "verdict": {"success": ok}, "aligned": aligned})]
     path.write_text("".join(json.dumps(e) + "\n" for e in events) + '{"event": "commit", "verdict"')  # a cut-off line
 
 
@@ -81,3 +84,8 @@ def test_each_failure_gets_its_first_cause(tmp_path):
     assert (row["trials"], row["committed_passes"], row["held"], row["trials_without_trace"]) == ("6", "5", "2", "2")
     assert "| libero_10 | scripted expert + SEAL (oracle) | 6 | 5 | 2 | 0.400 [0.118, 0.769] |" in md
     assert "2 trial(s) had no trace on disk" in md
+    # by kind: the picks (T,T), (T,F), (T,T), (T,F) -> 2 of 4 held; the one place passed, (T,F), did not hold
+    path = next(p for p in report.csv if p.name == "committed_passes_by_kind.csv")
+    kinds = {r["kind"]: (r["committed_passes"], r["held"]) for r in csv.DictReader(path.read_text().splitlines())}
+    assert kinds == {"pick": ("4", "2"), "place": ("1", "0")}
+    assert "| libero_10 | scripted expert + SEAL (oracle) | 2/4 = 0.500 [0.150, 0.850] | 0/1 = 0.000 [0.000, 0.793] |" in md

@@ -78,6 +78,7 @@ def write_report(db: str | Path, out_dir: str | Path, *, runs_dir: str | Path | 
     csvs.append(_write(out / "csv" / "completions.csv", tables.completion_csv(completions)))
     csvs.append(_write(out / "csv" / "failure_causes.csv", causes.cause_csv(failures)))
     csvs.append(_write(out / "csv" / "committed_passes.csv", causes.pass_csv(passes)))
+    csvs.append(_write(out / "csv" / "committed_passes_by_kind.csv", causes.pass_kind_csv(passes)))
     csvs.append(_write(out / "csv" / "errors.csv", tables.error_csv(data)))
     csvs.append(_write(out / "csv" / "verifier_errors.csv", tables.verifier_csv(data)))
 
@@ -90,7 +91,8 @@ def write_report(db: str | Path, out_dir: str | Path, *, runs_dir: str | Path | 
                 ("Lift", [lift.lift_display(lifts), lift.share_display(shares)]),
                 ("Alignment", [tables.alignment_display(alignment)]),
                 ("Endings", [tables.ending_display(endings), tables.completion_display(completions)]),
-                ("Failures", [causes.cause_display(failures), causes.pass_display(passes)]),
+                ("Failures", [causes.cause_display(failures), causes.pass_display(passes),
+                              causes.pass_kind_display(passes)]),
                 ("Runtime", [tables.runtime_display(runtime)]),
                 ("Errors", [tables.error_display(data), tables.verifier_display(data)])]
     md = _write(out / "report.md", _markdown(data, sections, plot_paths, out))

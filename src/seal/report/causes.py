@@ -29,6 +29,7 @@ from seal.eval.store import TrialRow
 from seal.report.data import MethodInfo, ReportData, succeeded
 from seal.report.stats import wilson
 from seal.report.tables import Table, to_csv
+from seal.verify.dataset import KINDS, subplan_kind
 
 CAUSES = ("misread", "verifier passed a miss", "false claim of completion", "no candidate passed", "out of steps",
           "crashed")
@@ -67,30 +68,40 @@ def plan_reads_goal(suite: str, task: int, plans: list[str]) -> bool | None:
     return goal <= _achieved(list(plans), names)
 
 
-def _commits(data: ReportData, row: TrialRow) -> list[tuple[bool, bool | None]] | None:
-    """(the verifier passed it, its sub-plan held by simulator truth or None if not audited) for every
-    commit in the trial's trace. None: no trace on disk."""
+@dataclass(frozen=True)
+class Commit:
+    passed: bool  # the verifier accepted the committed candidate
+    held: bool | None  # its sub-plan held by simulator truth; None if the commit was not audited
+    kind: str  # pick / place / open / close / turn / other, from the sub-plan's text
+
+
+def _commits(data: ReportData, row: TrialRow) -> list[Commit] | None:
+    """Every commit in the trial's trace, with the kind of sub-plan it was made for (the trace's last
+    ``subplan`` event before it). None: no trace on disk."""
     trace = data.resolve(row.trace_path)
     if trace is None:
         return None
-    out = []
+    out, subplan = [], ""
     with open(trace) as f:
         for line in f:
-            if '"commit"' not in line:
+            if '"commit"' not in line and '"subplan"' not in line:
                 continue
             try:
                 event = json.loads(line)
             except ValueError:  # a line cut off by a killed run
                 continue
-            if event.get("event") == "commit":
-                out.append(((event.get("verdict") or {}).get("success") is True, event.get("aligned")))
+            if event.get("event") == "subplan":
+                subplan = event.get("text") or ""
+            elif event.get("event") == "commit":
+                out.append(Commit((event.get("verdict") or {}).get("success") is True, event.get("aligned"),
+                                  subplan_kind(subplan)))
     return out
 
 
 def _verifier_passed_a_miss(data: ReportData, row: TrialRow) -> bool | None:
     """Did the verifier accept a commit whose sub-plan did not hold? None: no trace on disk."""
     commits = _commits(data, row)
-    return None if commits is None else any(passed and held is False for passed, held in commits)
+    return None if commits is None else any(c.passed and c.held is False for c in commits)
 
 
 def cause_of(data: ReportData, row: TrialRow, verifies: bool) -> tuple[str, bool]:
@@ -173,11 +184,12 @@ class PassRow:
     passes: int  # audited commits the verifier had passed
     held: int  # of those, sub-plans that held by simulator truth
     no_trace: int  # trials whose trace was not on disk
+    by_kind: dict  # sub-plan kind -> (passes, held)
 
 
 def pass_rows(data: ReportData) -> list[PassRow]:
     """Per suite and SEAL configuration, over every trial (solved or not): how many of the passes the
-    loop committed held."""
+    loop committed held, in all and per kind of sub-plan."""
     out = []
     for suite in data.suites:
         for m in data.methods_in(suite):
@@ -185,19 +197,24 @@ def pass_rows(data: ReportData) -> list[PassRow]:
                 continue
             rows = [r for r in data.rows if r.suite == suite and r.config_hash == m.config_hash]
             traced = [c for c in (_commits(data, r) for r in rows) if c is not None]
-            audited = [held for commits in traced for passed, held in commits if passed and held is not None]
-            out.append(PassRow(suite, m, len(rows), len(audited), sum(audited), len(rows) - len(traced)))
+            audited = [c for commits in traced for c in commits if c.passed and c.held is not None]
+            by_kind = {kind: (len(of), sum(c.held for c in of)) for kind in KINDS
+                       if (of := [c for c in audited if c.kind == kind])}
+            out.append(PassRow(suite, m, len(rows), len(audited), sum(c.held for c in audited),
+                               len(rows) - len(traced), by_kind))
     return out
 
 
-def pass_display(rows: list[PassRow]) -> Table:
-    def precision(r: PassRow) -> str:
-        if not r.passes:
-            return "-"
-        low, high = wilson(r.held, r.passes)
-        return f"{r.held / r.passes:.3f} [{low:.3f}, {high:.3f}]"
+def _precision(held: int, passes: int) -> str:
+    if not passes:
+        return "-"
+    low, high = wilson(held, passes)
+    return f"{held / passes:.3f} [{low:.3f}, {high:.3f}]"
 
-    body = [[r.suite, r.method.label, str(r.trials), str(r.passes), str(r.held), precision(r)] for r in rows]
+
+def pass_display(rows: list[PassRow]) -> Table:
+    body = [[r.suite, r.method.label, str(r.trials), str(r.passes), str(r.held), _precision(r.held, r.passes)]
+            for r in rows]
     notes = ["Every commit of a passing candidate whose sub-plan the simulator audited, in solved and failed trials; "
              "held: its goal atoms held in the committed state. Precision with a Wilson 95% interval. SEAL commits "
              "the first candidate of a round that passes, so a verifier's false passes are selected for: this "
@@ -210,7 +227,28 @@ def pass_display(rows: list[PassRow]) -> Table:
                                                               "precision"], body, set(), notes, left=2)
 
 
+def pass_kind_display(rows: list[PassRow]) -> Table:
+    """The table above split by the kind of sub-plan: where a verifier's false passes sit."""
+    kinds = [k for k in KINDS if any(k in r.by_kind for r in rows)]
+
+    def cell(r: PassRow, kind: str) -> str:
+        passes, held = r.by_kind.get(kind, (0, 0))
+        return f"{held}/{passes} = {_precision(held, passes)}" if passes else "-"
+
+    body = [[r.suite, r.method.label] + [cell(r, k) for k in kinds] for r in rows if r.passes]
+    notes = ["Held / committed passes per kind of sub-plan, with the precision and its Wilson 95% interval. The kind "
+             "is read from the sub-plan's first verb (pick, place, open, close, turn; anything else is other)."]
+    return Table("The passes SEAL committed, by kind of sub-plan", ["Suite", "Method"] + kinds, body, set(), notes,
+                 left=2)
+
+
 def pass_csv(rows: list[PassRow]) -> str:
     return to_csv(["suite", "method", "config_hash", "trials", "committed_passes", "held", "trials_without_trace"],
                   [[r.suite, r.method.label, r.method.config_hash, r.trials, r.passes, r.held, r.no_trace]
                    for r in rows])
+
+
+def pass_kind_csv(rows: list[PassRow]) -> str:
+    return to_csv(["suite", "method", "config_hash", "kind", "committed_passes", "held"],
+                  [[r.suite, r.method.label, r.method.config_hash, kind, passes, held]
+                   for r in rows for kind, (passes, held) in r.by_kind.items()])
