@@ -9,6 +9,7 @@ from seal.eval.store import ResultStore, TrialRow
 from seal.eval.trials import MethodSpec
 from seal.report import write_report
 from seal.report.causes import plan_reads_goal
+from seal.sim.suites import get_task
 
 BASE, SEAL = MethodSpec(method="base"), MethodSpec(k=10)
 # LIBERO-10 task 0: put both the alphabet soup and the tomato sauce in the basket
@@ -22,7 +23,10 @@ def test_a_plan_is_read_against_the_goal():
     assert plan_reads_goal("libero_10", 0, RIGHT[:2]) is False  # half the task
     # the rephrased suite's goal is the same; the plan is read against objects, not wording
     assert plan_reads_goal("lang_rephrase", 0, RIGHT) is True
-    assert plan_reads_goal("libero_10", 0, []) is None  # a policy that writes no plan (the twin)
+    assert plan_reads_goal("libero_10", 0, []) is None  # no plan stored
+    # a policy that does not reason (the twin) stores the instruction as its one sub-plan: not a misread
+    assert plan_reads_goal("libero_10", 0, ["put both the alphabet soup and the tomato sauce in the basket"]) is None
+    assert plan_reads_goal("lang_rephrase", 0, [get_task("lang_rephrase", 0).instruction]) is None
     # two alike butters: the parser cannot tell which one its own scripted plan means, so it judges none
     assert plan_reads_goal("libero_90", 3, ["pick up the butter", "place it in the top drawer"]) is None
 

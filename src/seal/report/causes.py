@@ -37,7 +37,8 @@ CAUSES = ("misread", "verifier passed a miss", "false claim of completion", "no 
 
 @cache
 def _goal_check(suite: str, task: int):
-    """(goal atoms, names to ground against) of a task, or None if the parser cannot judge its plans."""
+    """(goal atoms, names to ground against, the instruction) of a task, or None if the parser cannot
+    judge its plans."""
     from seal.policies.expert.plan import bddl_names, plan_task
     from seal.sim.suites import get_task
 
@@ -50,7 +51,7 @@ def _goal_check(suite: str, task: int):
     names = sorted(set(bddl_names(spec.bddl_path.read_text())) | {x for a in spec.goal_atoms() for x in a.args})
     if not goal <= _achieved([s.text for s in plan_task(spec)], names):
         return None
-    return goal, names
+    return goal, names, spec.instruction
 
 
 def _achieved(plans: list[str], names: list[str]) -> set[str]:
@@ -60,11 +61,15 @@ def _achieved(plans: list[str], names: list[str]) -> set[str]:
 
 
 def plan_reads_goal(suite: str, task: int, plans: list[str]) -> bool | None:
-    """Does a written plan lead to the task's goal? None: no plan, or a task the parser cannot judge."""
+    """Does a written plan lead to the task's goal? None: no plan, or a task the parser cannot judge.
+    A policy that does not reason (the twin) stores the instruction as its one sub-plan: that is no
+    plan it wrote, so it is not judged either."""
     check = _goal_check(suite, task)
     if check is None or not plans:
         return None
-    goal, names = check
+    goal, names, instruction = check
+    if list(plans) == [instruction]:
+        return None
     return goal <= _achieved(list(plans), names)
 
 
@@ -159,7 +164,8 @@ def cause_display(rows: list[CauseRow]) -> Table:
     notes = ["Each failed trial counts once, under the first cause that applies: misread (the written plan does not "
              "lead to the goal, by the oracle's parser), verifier passed a miss (a commit it accepted failed its "
              "sub-plan by simulator truth), false claim of completion, no candidate passed (a round fell back), out "
-             "of steps (a right plan the actions did not finish), crashed. Shares are of the failures. Out of "
+             "of steps (a right plan the actions did not finish), crashed. A policy that writes no plan (the twin) is "
+             "never counted as a misread: its failures are out of steps. Shares are of the failures. Out of "
              "distribution, a misread points at the language, out of steps at the actions (unseen views), a "
              "verifier's pass of a miss at the verifier."]
     missing = sum(r.no_trace for r in rows)
