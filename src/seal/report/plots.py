@@ -55,6 +55,10 @@ def success_plot(data: ReportData, tables: list[SuccessTable], path: Path) -> Pa
                 paper_y.append(st.paper["average"][st.paper_methods.index(pm)])
         heights, err = _errorbars(cells)
         ax.bar(xs, heights, width * 0.92, yerr=err, capsize=3, label=m.label)
+        # The value above each whisker: a 0% bar has no height to see, and the whisker's top is
+        # easy to misread for the bar's.
+        for x, h, up in zip(xs, heights, err[1]):
+            ax.text(x, h + up + 1.0, f"{h:.0f}", ha="center", va="bottom", fontsize=7)
         if paper_x:
             # White with a black edge: visible both above a bar and inside it.
             ax.scatter(paper_x, paper_y, marker="D", s=30, facecolors="white", edgecolors="black",
@@ -62,7 +66,7 @@ def success_plot(data: ReportData, tables: list[SuccessTable], path: Path) -> Pa
     if any(st.paper_methods for st in tables):
         ax.scatter([], [], marker="D", facecolors="white", edgecolors="black", label="paper (same method)")
     ax.set_xticks(range(len(tables)), [st.suite for st in tables], rotation=15)
-    ax.set_ylim(0, 105)
+    ax.set_ylim(0, 108)
     ax.set_ylabel("success (%)")
     ax.set_title("Success per suite (all trials pooled, Wilson 95% CI)")
     ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=1, frameon=False)
