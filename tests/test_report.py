@@ -222,7 +222,7 @@ def test_csv_layout(report):
     runtime = {r["method"]: r for r in csv.DictReader(by_name["runtime.csv"].read_text().splitlines())}
     assert float(runtime[BASE_N]["wall_s_per_executed_step"]) == pytest.approx(0.2)  # 20 s / 100 steps
     assert float(runtime[SEAL2_N]["verifier_calls_per_trial"]) == pytest.approx(60 / 21, abs=0.01)
-    align = {r["method"]: r for r in csv.DictReader(by_name["alignment.csv"].read_text().splitlines())}
+    align = {(r["suite"], r["method"]): r for r in csv.DictReader(by_name["alignment.csv"].read_text().splitlines())}
     endings = {(r["method"], r["ended_by"]): (int(r["episodes"]), int(r["failed"]))
                for r in csv.DictReader(by_name["endings.csv"].read_text().splitlines())}
     # base: 15 successes; of the 5 failures of libero_10 task 0, trial 5's trace says idle and 4 say
@@ -238,8 +238,12 @@ def test_csv_layout(report):
     assert claims[BASE_N] == (30, 10, 0, 10, 0)
     assert claims[SEAL_N] == (31, 8, 6, 6, 2)
     assert claims[SEAL2_N] == (21, 0, 0, 0, 0)
-    assert float(align[BASE_N]["alignment_rate"]) == 0.5 and float(align[SEAL2_N]["alignment_rate"]) == 1.0
-    assert align[BASE_N]["subplans_audited"] == str(2 * N * 3)  # 2 per trial, 3 tasks; totals, not a mean of rates
+    base, seal2 = align[("libero_10", BASE_N)], align[("libero_10", SEAL2_N)]
+    assert float(base["alignment_rate"]) == 0.5 and float(seal2["alignment_rate"]) == 1.0
+    assert base["subplans_audited"] == str(2 * N * 2)  # 2 per trial, 2 tasks; totals, not a mean of rates
+    # per suite: composition's rows stand apart; SEAL2 has only its crashed trial there
+    assert align[("composition", BASE_N)]["subplans_audited"] == str(2 * N)
+    assert (align[("composition", SEAL2_N)]["trials"], align[("composition", SEAL2_N)]["subplans_audited"]) == ("1", "0")
     errors = list(csv.DictReader(by_name["errors.csv"].read_text().splitlines()))
     assert len(errors) == 1 and errors[0]["method"] == SEAL2_N
 

@@ -320,9 +320,10 @@ def runtime_csv(rows: list[RuntimeRow]) -> str:
 # ---- alignment ------------------------------------------------------------------------------------
 @dataclass
 class AlignmentRow:
-    """The reasoning-action alignment of one method configuration: of the sub-plans it committed
-    (and the oracle could ground), the share whose executed chunks achieved the sub-plan."""
+    """The reasoning-action alignment of one method configuration on one suite: of the sub-plans it
+    committed (and the oracle could ground), the share whose executed chunks achieved the sub-plan."""
 
+    suite: str
     method: MethodInfo
     trials: int
     audited: int
@@ -334,17 +335,23 @@ class AlignmentRow:
 
 
 def alignment_rows(data: ReportData) -> list[AlignmentRow]:
-    by_method = [(m, [r for r in data.rows if r.config_hash == m.config_hash]) for m in data.methods]
-    return [AlignmentRow(m, len(rs), sum(r.subplans_audited for r in rs), sum(r.subplans_aligned for r in rs))
-            for m, rs in by_method]
+    """Per suite: out of distribution, the same plans with a lower rate say the actions stopped
+    following the reasoning."""
+    out = []
+    for suite in data.suites:
+        for m in data.methods_in(suite):
+            rs = [r for r in data.rows if r.suite == suite and r.config_hash == m.config_hash]
+            out.append(AlignmentRow(suite, m, len(rs), sum(r.subplans_audited for r in rs),
+                                    sum(r.subplans_aligned for r in rs)))
+    return out
 
 
 def alignment_display(rows: list[AlignmentRow]) -> Table:
-    headers = ["Method", "K", "trials", "sub-plans audited", "achieved", "alignment rate", "95% CI"]
+    headers = ["Suite", "Method", "K", "trials", "sub-plans audited", "achieved", "alignment rate", "95% CI"]
     body = []
     for r in rows:
         lo, hi = wilson(r.aligned, r.audited) if r.audited else (math.nan, math.nan)
-        body.append([r.method.label, str(r.method.k), str(r.trials), str(r.audited), str(r.aligned),
+        body.append([r.suite, r.method.label, str(r.method.k), str(r.trials), str(r.audited), str(r.aligned),
                      _fmt(100 * r.rate, 1) + ("%" if r.audited else ""),
                      f"{_fmt(100 * lo, 0)}–{_fmt(100 * hi, 0)}%" if r.audited else "–"])
     notes = [("After every commit, the oracle grounds the sub-plan the policy wrote to goal atoms and checks them "
@@ -352,12 +359,13 @@ def alignment_display(rows: list[AlignmentRow]) -> Table:
               "runs for every method and never influences a decision. Sub-plans the oracle cannot ground, and "
               "policies that write none (the non-reasoning twin), are not counted.")]
     return Table("Reasoning-action alignment (committed sub-plans achieved, by simulator truth)", headers, body,
-                 set(), notes, left=1)
+                 set(), notes, left=2)
 
 
 def alignment_csv(rows: list[AlignmentRow]) -> str:
-    return to_csv(["method", "config_hash", "k", "trials", "subplans_audited", "subplans_aligned", "alignment_rate"],
-                  [[r.method.label, r.method.config_hash, r.method.k, r.trials, r.audited, r.aligned,
+    return to_csv(["suite", "method", "config_hash", "k", "trials", "subplans_audited", "subplans_aligned",
+                   "alignment_rate"],
+                  [[r.suite, r.method.label, r.method.config_hash, r.method.k, r.trials, r.audited, r.aligned,
                     num(r.rate, 4)] for r in rows])
 
 
