@@ -31,7 +31,7 @@ SHIPPED_VLA = Path(__file__).resolve().parents[1] / "src/seal/policies/vla/check
 SHIPPED_VERIFIER = Path(__file__).resolve().parents[1] / "src/seal/verify/checkpoints/learned"
 EXPERT_VERIFIER = SHIPPED_VERIFIER.parent / "expert"  # the first shipped one, `learned:expert`
 VLA_ROUNDS_VERIFIER = SHIPPED_VERIFIER.parent / "vla_rounds"  # the second, `learned:vla_rounds`
-SHIPPED_VALUE = Path(__file__).resolve().parents[1] / "src/seal/value/checkpoints/l10_demos"  # V-GPS default
+SHIPPED_VALUES = Path(__file__).resolve().parents[1] / "src/seal/value/checkpoints"  # V-GPS: l10_twin_rollouts default
 
 
 def _shipped_digests() -> dict:
@@ -43,9 +43,10 @@ def _shipped_digests() -> dict:
     learned = {name: hashlib.sha1((d / "model.safetensors").read_bytes() + (d / "config.json").read_bytes()).hexdigest()[:12]
                for name, d in (("learned", SHIPPED_VERIFIER), ("learned:expert", EXPERT_VERIFIER),
                                ("learned:vla_rounds", VLA_ROUNDS_VERIFIER))}
-    value = hashlib.sha1((SHIPPED_VALUE / "value.safetensors").read_bytes()
-                         + (SHIPPED_VALUE / "value.json").read_bytes()).hexdigest()[:12]
-    return {**vla, **learned, "value": value}
+    value = {f"value:{name}": hashlib.sha1((SHIPPED_VALUES / name / "value.safetensors").read_bytes()
+                                           + (SHIPPED_VALUES / name / "value.json").read_bytes()).hexdigest()[:12]
+             for name in ("l10_demos", "l10_twin_rollouts")}
+    return {**vla, **learned, **value}
 
 
 def _fixed_value_checkpoint(tmp_path: Path) -> Path:
@@ -69,7 +70,7 @@ def test_config_hashes_of_plugins_are_kept(tmp_path):
     assert _shipped_digests() == {"reason": "563400068f48", "twin": "cd9f0d7bdb3c", "reason_r0": "009dcdd7fb35",
                                   "twin_r0": "14bb7098169e", "learned": "c0646b399509",
                                   "learned:expert": "8818a7a2714f", "learned:vla_rounds": "808648b1ea87",
-                                  "value": "a353a1507bf5"}
+                                  "value:l10_demos": "a353a1507bf5", "value:l10_twin_rollouts": "257c70543923"}
     value = _fixed_value_checkpoint(tmp_path)
     cases = [  # (spec, config hash, label, canonical form: its keys in this order)
         (MethodSpec(policy="vla:reason_r0"), "0c35fb9f53", "seal[policy=vla,render=fast,policy_ckpt=009dcdd7fb35]",

@@ -26,9 +26,11 @@ VALUE_FILES = (VALUE_WEIGHTS, VALUE_CONFIG)
 VALUE_CHECKPOINT = CheckpointFormat(VALUE_KIND, required=VALUE_FILES, named_by=VALUE_FILES, algorithm="sha1")
 
 SHIPPED_DIR = Path(__file__).resolve().parent / "checkpoints"
-# The Q-function V-GPS uses when no checkpoint is named: IQL on LIBERO-10 demonstrations (the paper's
-# recipe: offline demonstrations only). Other directories of checkpoints/ load by their names.
-DEFAULT_SHIPPED = "l10_demos"
+# The Q-function V-GPS uses when no checkpoint is named: IQL on LIBERO-10 demonstrations plus the twin's
+# own rollouts, failures included. The demonstrations-only one (the paper's recipe, `l10_demos`) ranked
+# the twin's held-out chunks no better than chance (docs/performance.md). Other directories of
+# checkpoints/ load by their names.
+DEFAULT_SHIPPED = "l10_twin_rollouts"
 
 
 def shipped() -> dict[str, Path]:
