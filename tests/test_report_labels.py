@@ -126,6 +126,15 @@ def test_shipped_checkpoints_are_known_by_their_digests():
                         vlas={reason: KnownVLA("my VLA", "fast")}) == "my VLA"
 
 
+def test_shipped_q_functions_other_than_the_default_are_named():
+    """The V-GPS rows made with the first shipped Q-function must not read as the default's."""
+    twin = MethodSpec(method="base", policy="vla:twin").canonical()
+    demos = {**twin, "method": "value", "k": 10, "value_ckpt": "a353a1507bf5", "value_goal": "task"}  # l10_demos
+    assert display_name(demos) == "twin + V-GPS (Q from demonstrations only)"
+    assert display_name({**demos, "value_ckpt": "257c70543923"}) == "twin + V-GPS"  # the default, l10_twin_rollouts
+    assert display_name({**demos, "value_ckpt": "ba9876543210"}) == "twin + V-GPS"  # a run of one's own
+
+
 def test_distinct_configs_keep_distinct_names(tmp_path):
     configs = list(_standard().values())
     configs += [MethodSpec(method="seal", policy="vla", k=k).canonical() for k in (2, 4)]

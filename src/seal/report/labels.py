@@ -32,6 +32,8 @@ VERIFIER_NAMES = {"oracle": "oracle", "noisy": "noisy oracle", "learned": "learn
                   "openai": "OpenAI VLM", "gemini": "Gemini VLM"}
 # `learned:expert`: trained on the scripted expert's rounds; `learned:vla_rounds`: fine-tuned on the first VLA's
 EARLIER_VERIFIER_NAMES = {"expert": "expert rounds", "vla_rounds": "the first VLA's rounds"}
+# V-GPS Q-functions shipped beside the default (`seal.value.DEFAULT_SHIPPED`, which goes unnamed)
+VALUE_NAMES = {"l10_demos": "Q from demonstrations only", "l10_twin_rollouts": "Q with the twin's rollouts"}
 # Settings a name never shows: identities already in the policy's name, digests, or what the
 # method name says.
 _SILENT = {"method", "policy", "policy_ckpt", "value_ckpt"}
@@ -81,6 +83,34 @@ def earlier_verifiers() -> dict[str, str]:
         except (InvalidInput, OSError):  # a damaged or missing copy: its rows keep the generic name
             continue
     return out
+
+
+def shipped_values() -> dict[str, str]:
+    """Weights digest -> shipped name of the package's V-GPS Q-functions, read from their manifests
+    (no hashing; an unreadable manifest is skipped)."""
+    from seal.checkpoint import MANIFEST
+    from seal.value import shipped
+
+    out = {}
+    for name, path in shipped().items():
+        try:
+            digest = (json.loads((path / MANIFEST).read_text()).get("shipped") or {}).get("digest")
+        except (OSError, ValueError):
+            continue
+        if digest:
+            out[str(digest)] = name
+    return out
+
+
+def _value_phrase(config: dict) -> str | None:
+    """A shipped Q-function other than the default, by name; the default and unknown runs go unnamed
+    (two unknown ones are told apart by their config hash)."""
+    from seal.value import DEFAULT_SHIPPED
+
+    name = shipped_values().get(str(config.get("value_ckpt") or ""))
+    if name is None or name == DEFAULT_SHIPPED:
+        return None
+    return VALUE_NAMES.get(name, f"Q-function {name}")
 
 
 def display_name(config: dict, vlas: dict[str, KnownVLA] | None = None) -> str:
@@ -156,6 +186,8 @@ def _steering_notes(config: dict) -> list[str]:
             notes.append(f"check every {config['check_every']} steps")
         if config.get("done_check") == "trust":
             notes.append("policy's done trusted")
+    if method == "value" and (q := _value_phrase(config)):
+        notes.append(q)
     if config.get("value_goal", DEFAULTS["value_goal"]) != DEFAULTS["value_goal"]:
         notes.append(f"{config['value_goal'].replace('subplan', 'sub-plan')} goal")
     return notes
