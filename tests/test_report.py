@@ -268,6 +268,8 @@ def test_bad_input(store_path, tmp_path):
         pass
     with pytest.raises(InvalidInput, match="no finished trials"):
         write_report(tmp_path / "empty.db", tmp_path / "r")
+    with pytest.raises(InvalidInput, match="libero_90.*it holds: composition, libero_10"):
+        write_report(store_path, tmp_path / "r", suites=["libero_10", "libero_90"])
 
 
 # ---- HTML ---------------------------------------------------------------------------------------
@@ -302,6 +304,12 @@ def test_report_cli(store_path, tmp_path):
     out = tmp_path / "cli_report"
     assert main(["report", str(store_path), "--out", str(out), "--media", "link", "--no-episodes"]) == 0
     assert (out / "index.html").exists() and (out / "report.md").exists() and not (out / "episodes").exists()
+    # one suite of two: the other leaves every table
+    only = tmp_path / "one_suite"
+    assert main(["report", str(store_path), "--out", str(only), "--media", "none", "--no-episodes",
+                 "--suites", "composition"]) == 0
+    md = (only / "report.md").read_text()
+    assert "### composition: success rate" in md and "### libero_10" not in md and "| libero_10 |" not in md
 
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")

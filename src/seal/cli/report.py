@@ -17,6 +17,7 @@ def add(sub) -> None:
     rep.add_argument("--paper-training", default="libero_100",
                      help="the paper's training set shown beside ours: libero_10 | libero_100 | libero_100_basket")
     rep.add_argument("--no-episodes", action="store_true", help="skip the per-episode pages")
+    rep.add_argument("--suites", default="", help="comma-separated suites to report (default: all in the database)")
     rep.set_defaults(func=_cmd_report)
 
 
@@ -29,7 +30,7 @@ def _cmd_report(args) -> int:
     with Progress(TextColumn("episode pages"), BarColumn(), MofNCompleteColumn(), transient=True) as bar:
         job = bar.add_task("pages", total=None)
         paths = write_report(args.db, out, runs_dir=args.runs, media=args.media, paper_training=args.paper_training,
-                             episodes=not args.no_episodes,
+                             episodes=not args.no_episodes, suites=[x for x in args.suites.split(",") if x] or None,
                              progress=lambda done, total: bar.update(job, completed=done, total=total))
     print(json.dumps({"index": str(paths.index_html), "markdown": str(paths.markdown),
                       "csv": [str(p) for p in paths.csv], "plots": [str(p) for p in paths.plots],

@@ -89,13 +89,21 @@ def succeeded(row: TrialRow) -> bool:
 class ReportData:
     """Everything the report reads from one results database."""
 
-    def __init__(self, db: str | Path, *, runs_dir: str | Path | None = None):
+    def __init__(self, db: str | Path, *, runs_dir: str | Path | None = None, suites: list[str] | None = None):
+        """``suites``: report only these (a run still under way in others, say); default all."""
         self.db_path = Path(db)
         with ResultStore(self.db_path, create=False) as store:
             self.rows = store.rows()
             registered = store.methods()
         if not self.rows:
             raise InvalidInput(f"{self.db_path} holds no finished trials yet; run `seal eval` first")
+        if suites:
+            stored = sorted({r.suite for r in self.rows})
+            unknown = [s for s in suites if s not in stored]
+            if unknown:
+                raise InvalidInput(f"no trials of suite(s) {', '.join(unknown)} in {self.db_path}; "
+                                   f"it holds: {', '.join(stored)}")
+            self.rows = [r for r in self.rows if r.suite in suites]
         self.runs_dir = Path(runs_dir) if runs_dir else Path(str(self.db_path.with_suffix("")) + "_runs")
         self.methods = _method_list(self.rows, registered)
         self.by_hash = {m.config_hash: m for m in self.methods}
