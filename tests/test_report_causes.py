@@ -71,7 +71,9 @@ def test_each_failure_gets_its_first_cause(tmp_path):
     path = next(p for p in report.csv if p.name == "failure_causes.csv")
     rows = {r["config_hash"]: r for r in csv.DictReader(path.read_text().splitlines())}
     base, seal = rows[BASE.config_hash], rows[SEAL.config_hash]
-    counts = lambda r: {k: int(v) for k, v in r.items() if k not in ("suite", "method", "config_hash")}  # noqa: E731
+    counts = lambda r: {k: int(v) for k, v in r.items()  # noqa: E731
+                        if k not in ("suite", "method", "config_hash", "misread_tasks")}
+    assert (base["misread_tasks"], seal["misread_tasks"]) == ("0", "0")  # which task's instruction was misread
     assert counts(base) == {"trials": 4, "failures": 3, "misread": 1, "verifier_passed_a_miss": 0,
                             "false_claim_of_completion": 1, "no_candidate_passed": 0, "out_of_steps": 1,
                             "crashed": 0, "failures_without_trace": 0}
@@ -80,6 +82,7 @@ def test_each_failure_gets_its_first_cause(tmp_path):
                             "crashed": 1, "failures_without_trace": 1}
     md = report.markdown.read_text()
     assert "### Why episodes failed" in md and "had no trace on disk" in md
+    assert "| 4 | 3 | 1 (33%), task 0 |" in md  # base: the misread cell names the task
     # the passes SEAL committed, solved trials too: (T,T)+(T,F), (T,F), (T,T)+(F,F), and the success's (T,F):
     # 5 passes, 2 held; the crashed and the trace-less trial are left out, and a base has no such row
     path = next(p for p in report.csv if p.name == "committed_passes.csv")

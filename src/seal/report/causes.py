@@ -134,6 +134,7 @@ class CauseRow:
     failures: int
     counts: dict  # cause -> failed trials
     no_trace: int  # failures whose trace was not on disk: a verifier's misses could not be counted
+    misread_tasks: list  # tasks with a misread failure: which instructions the policy read wrong
 
 
 def cause_rows(data: ReportData) -> list[CauseRow]:
@@ -142,13 +143,15 @@ def cause_rows(data: ReportData) -> list[CauseRow]:
         for m in data.methods_in(suite):
             rows = [r for r in data.rows if r.suite == suite and r.config_hash == m.config_hash]
             counts = dict.fromkeys(CAUSES, 0)
-            no_trace = 0
+            no_trace, misread = 0, set()
             failed = [r for r in rows if not succeeded(r)]
             for r in failed:
                 cause, missing = cause_of(data, r, verifies=m.method == "seal")
                 counts[cause] += 1
                 no_trace += missing
-            out.append(CauseRow(suite, m, len(rows), len(failed), counts, no_trace))
+                if cause == "misread":
+                    misread.add(r.task)
+            out.append(CauseRow(suite, m, len(rows), len(failed), counts, no_trace, sorted(misread)))
     return out
 
 
@@ -159,8 +162,14 @@ def cause_display(rows: list[CauseRow]) -> Table:
     def cell(n: int, of: int) -> str:
         return f"{n} ({100 * n / of:.0f}%)" if n else "0"
 
-    body = [[r.suite, r.method.label, str(r.trials), str(r.failures)] + [cell(r.counts[c], r.failures) for c in used]
-            for r in rows]
+    def cells(r: CauseRow) -> list[str]:
+        out = [cell(r.counts[c], r.failures) for c in used]
+        if r.misread_tasks:  # which instructions were read wrong, not only how often
+            i = used.index("misread")
+            out[i] += f", task{'s' * (len(r.misread_tasks) > 1)} {', '.join(map(str, r.misread_tasks))}"
+        return out
+
+    body = [[r.suite, r.method.label, str(r.trials), str(r.failures)] + cells(r) for r in rows]
     notes = ["Each failed trial counts once, under the first cause that applies: misread (the written plan does not "
              "lead to the goal, by the oracle's parser), verifier passed a miss (a commit it accepted failed its "
              "sub-plan by simulator truth), false claim of completion, no candidate passed (a round fell back), out "
@@ -176,9 +185,9 @@ def cause_display(rows: list[CauseRow]) -> Table:
 
 def cause_csv(rows: list[CauseRow]) -> str:
     return to_csv(["suite", "method", "config_hash", "trials", "failures", *[c.replace(" ", "_") for c in CAUSES],
-                   "failures_without_trace"],
+                   "failures_without_trace", "misread_tasks"],
                   [[r.suite, r.method.label, r.method.config_hash, r.trials, r.failures,
-                    *[r.counts[c] for c in CAUSES], r.no_trace] for r in rows])
+                    *[r.counts[c] for c in CAUSES], r.no_trace, ";".join(map(str, r.misread_tasks))] for r in rows])
 
 
 # ---- the passes SEAL acted on -----------------------------------------------------------------------
