@@ -491,3 +491,62 @@ def test_dagger_chunks_train_only_the_steps_the_teacher_labelled(tok):
     demos = texts.labels(reason, instruction, [], [])
     batch = Batcher(cache, demos, tok, tiny(tok)).batch(frames, reason, np.zeros(n, bool))
     assert batch["action_valid"].sum(1).tolist() == [3, 2, 1]  # the window stops at the episode's end
+
+
+def test_plan_only_actions_ignore_the_instruction_and_train_each_part_as_it_runs(annotated, tok, tmp_path):
+    """``actions_read_instruction=False``: two wordings of one instruction give the same chunks and think flag
+    for the same sub-plan (the reasoning still reads the instruction); a model that reads it acts on the
+    wording. In training each ordinary sample is either a text sample (with the instruction) or an action
+    sample (without); think samples leave it out, as `act` reads the think flag."""
+    torch.manual_seed(0)
+    reasoning = Reasoning(PLANS, PLANS[:1], PLANS[1])
+    reworded = replace(obs_at(32), prompt="set the bowl and then the mug onto the plate")
+
+    def chunks(cfg):
+        model = VLAModel(cfg).eval()
+        out = []
+        for obs in (obs_at(32), reworded):
+            policy = VLAPolicy(model, tok, instruction=INSTRUCTION, seed=3)
+            policy.reset(INSTRUCTION, seed=0)
+            policy.begin(2)
+            out.append(np.stack([c.actions for c in policy.act([obs, obs], reasoning)]))
+        return out
+
+    plan_only = chunks(tiny(tok, actions_read_instruction=False))
+    np.testing.assert_array_equal(plan_only[0], plan_only[1])
+    reads = chunks(tiny(tok))
+    assert np.abs(reads[0] - reads[1]).max() > 1e-4  # the check above can fail
+    with pytest.raises(InvalidInput, match="needs a reasoning model"):
+        tiny(tok, reasoning=False, actions_read_instruction=False)
+
+    from seal.train.vla import RunState, _draw_mixture
+
+    run = tmp_path / "run"
+    cfg = TrainConfig(steps=2, batch_size=64, log_every=1, eval_every=1000, eval_samples=2, holdout=0.34,
+                      save_minutes=1000, bf16=False, warmup=1, text_share=0.25)
+    summary = train_vla(None, annotated / "ann", run, cfg, tiny(tok), cache=annotated / "cache",
+                        plan_only_actions=True)
+    model, _, manifest = load_checkpoint(run / "checkpoint")
+    assert summary["step"] == 2 and not model.cfg.actions_read_instruction
+    with pytest.raises(InvalidInput, match="--instruction-dropout"):
+        train_vla(None, annotated / "ann", tmp_path / "other", replace(cfg, instruction_dropout=0.3), tiny(tok),
+                  cache=annotated / "cache", plan_only_actions=True)
+
+    # the batches themselves (the trainer's own sources, rebuilt from the run's cache)
+    from seal.annotate.loader import AnnotatedDataset
+    from seal.train.vla import Batcher, Source, build_cache, make_labels
+
+    ann = AnnotatedDataset(annotated / "ann")
+    fc = build_cache(ann.source, ann.episodes, tmp_path / "cache", 32)
+    lab = make_labels(fc, ann.records, ann.root)
+    mcfg = tiny(tok, actions_read_instruction=False)
+    src = Source("a", fc, lab, Batcher(fc, lab, tok, mcfg), np.arange(len(fc.states)),
+                 np.arange(len(lab.think_frames)), 1.0)
+    state = RunState(0, np.random.default_rng(0), torch.Generator().manual_seed(0))
+    batch = _draw_mixture([src], replace(cfg, batch_size=256), mcfg, state)
+    empty = torch.from_numpy(src.batcher.instr_ids[src.batcher.no_instruction])
+    no_instr = (batch["instr_ids"] == empty).all(1)
+    text, action, think = batch["text_mask"], batch["action_mask"], batch["think"].bool()
+    assert not (text & action).any() and bool(text.any()) and bool(action.any()) and bool(think.any())
+    assert torch.equal(no_instr, ~text) and torch.equal(batch["think_mask"], ~text)
+    assert 0.15 < float(text.float().mean()) < 0.35

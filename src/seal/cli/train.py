@@ -49,6 +49,13 @@ def add(sub) -> None:
     vla.add_argument("--instruction-dropout", type=real_in(0.0, 1.0, high_open=True), default=None,
                      help="share of samples trained with the instruction left out, so actions read the sub-plan "
                           "(reasoning model; default 0)")
+    vla.add_argument("--plan-only-actions", action=argparse.BooleanOptionalAction, default=None,
+                     help="the action expert sees an empty instruction: chunks follow the sub-plan text, the cameras "
+                          "and the state alone, so a reworded instruction acts only through the plan (default: "
+                          "as the --init-from model, else off)")
+    vla.add_argument("--text-share", type=real_in(0.0, 1.0, low_open=True, high_open=True), default=None,
+                     help="with --plan-only-actions: share of ordinary samples that train the reasoning text "
+                          "(default 0.25); the rest train the actions")
     vla.add_argument("--no-reasoning", action="store_true", help="train the non-reasoning twin (pi0 baseline)")
     vla.add_argument("--device", default=None, help="cpu (default) | cuda")
     vla.add_argument("--cache", default=None, help="frame cache directory (default RUN/cache; reusable across runs)")
@@ -202,7 +209,7 @@ def _cmd_train_vla(args) -> int:
     given = {"steps": args.steps, "batch_size": args.batch_size, "lr": args.lr, "holdout": args.holdout,
              "device": args.device, "threads": args.threads, "save_minutes": args.save_minutes,
              "eval_every": args.eval_every, "bf16": args.bf16, "seed": args.seed,
-             "instruction_dropout": args.instruction_dropout}
+             "instruction_dropout": args.instruction_dropout, "text_share": args.text_share}
     cfg = replace(TrainConfig(), **{k: v for k, v in given.items() if v is not None})
     model_cfg = VLAConfig()
     if args.model_config:
@@ -227,7 +234,8 @@ def _cmd_train_vla(args) -> int:
         summary = train_vla(Path(args.dataset) if args.dataset else None,
                             [Path(a) for a in args.annotations.split(",") if a.strip()], Path(args.out),
                             cfg, model_cfg, cache=Path(args.cache) if args.cache else None, progress=progress,
-                            command="seal " + " ".join(args.argv), mix=mix, init_from=args.init_from)
+                            command="seal " + " ".join(args.argv), mix=mix, init_from=args.init_from,
+                            plan_only_actions=args.plan_only_actions)
     out = {k: summary[k] for k in ("run", "step", "params", "last", "heldout")}
     if args.export:
         from seal.policies.vla.checkpoint import export_checkpoint

@@ -81,6 +81,10 @@ class TrainConfig:
     # share of ordinary samples whose instruction is left out (reasoning model only): the action expert
     # must then read the task from the sub-plan text, so its actions follow the reasoning, not the prompt
     instruction_dropout: float = 0.0
+    # models whose actions do not read the instruction (VLAConfig.actions_read_instruction=False): the share
+    # of ordinary samples that train the reasoning text, with the instruction; the others train the action
+    # chunk and the think flag with it left out, as the model runs them. Think samples leave it out too.
+    text_share: float = 0.25
     # bf16 autocast; None: on where it pays (a GPU, or a CPU with native bf16 units: `native_bf16`). On a
     # CPU without them (AVX-512 but no avx512_bf16/AMX) it is emulated: ~5x slower per step, measured
     bf16: bool | None = None
@@ -519,13 +523,15 @@ def _sources(annotations: list[Path], dataset: Path | None, cfg: TrainConfig):
 
 def train_vla(dataset: Path | None, annotations: Path | list[Path], out: Path, cfg: TrainConfig, model_cfg: VLAConfig,
               *, cache: Path | None = None, progress=None, command: str = "", mix: list[float] | None = None,
-              init_from: str | None = None) -> dict:
+              init_from: str | None = None, plan_only_actions: bool | None = None) -> dict:
     """Train (or resume) a VLA into run directory ``out``; returns the summary (also summary.json).
 
     ``annotations``: one annotation directory or several (demonstrations first, then DAgger rounds);
     ``mix``: the share of each batch drawn from each (default: in proportion to their frames).
     ``init_from``: a VLA checkpoint to fine-tune (its network shape, tokenizer and normalization;
     ``model_cfg`` is then ignored).
+    ``plan_only_actions``: whether the action expert reads the instruction (`VLAConfig.actions_read_instruction`
+    negated); None keeps ``model_cfg``'s or the initial model's.
     ``progress(stage, done, total, metrics)``: stage "cache" (episodes decoded) or "train"."""
     out = Path(out)
     say = progress or (lambda *a, **k: None)
@@ -554,6 +560,11 @@ def train_vla(dataset: Path | None, annotations: Path | list[Path], out: Path, c
                                f"{render['fast_version']}); fine-tune on data of the model's own render")
         init = load_checkpoint(resolve_checkpoint(init_from))
         model_cfg = init[0].cfg
+    if plan_only_actions is not None:  # a training choice, not a shape: no weight changes with it
+        model_cfg = replace(model_cfg, actions_read_instruction=not plan_only_actions)
+    if not model_cfg.actions_read_instruction and cfg.instruction_dropout:
+        raise InvalidInput("--instruction-dropout is for models whose actions read the instruction; with "
+                           "--plan-only-actions they never do (the reasoning text keeps it: --text-share)")
     out.mkdir(parents=True, exist_ok=True)  # not before: annotations that cannot be used leave no empty run directory
 
     # tokenizer: trained once per run on the project's text and this data's labels (or the initial model's)
@@ -721,6 +732,16 @@ def _draw(batcher: Batcher, labels: Labels, train_frames, think_rows, cfg: Train
         frames = np.concatenate([frames, labels.think_frames[pick]])
         reason = np.concatenate([reason, labels.think_reason[pick]])
     think = np.arange(len(frames)) >= cfg.batch_size - n_think
+    if model_cfg.reasoning and not model_cfg.actions_read_instruction:
+        # each ordinary sample trains either the text (as `reason` runs: with the instruction) or the chunk and
+        # think flag (as `act` runs: without it); one prefix per sample keeps the step cost of the usual recipe
+        text = (state.rng.random(len(frames)) < cfg.text_share) & ~think
+        batch = batcher.batch(frames, reason, think, cfg.shift, state.gen, cfg.device, drop=~text)
+        dev = batch["think"].device
+        batch["text_mask"] = torch.from_numpy(text).to(dev)
+        batch["action_mask"] = torch.from_numpy(~text & ~think).to(dev)
+        batch["think_mask"] = torch.from_numpy(~text).to(dev)
+        return batch
     drop = None
     if cfg.instruction_dropout and model_cfg.reasoning:  # ordinary samples only: they carry a sub-plan
         drop = (state.rng.random(len(frames)) < cfg.instruction_dropout) & ~think
@@ -743,7 +764,7 @@ def _restore(where: Path, model, opt, state: RunState, cfg: TrainConfig, model_c
     from safetensors.torch import load_file
 
     meta = json.loads((where / STATE_JSON).read_text())
-    saved = {k: v for k, v in meta["config"].items() if k not in _RESUMABLE}
+    saved = {k: v for k, v in {**asdict(TrainConfig()), **meta["config"]}.items() if k not in _RESUMABLE}  # fields added since: defaults
     mine = {k: v for k, v in asdict(cfg).items() if k not in _RESUMABLE}
     loaded, _, _ = load_checkpoint(where)
     if saved != mine or meta["data"] != fingerprint or loaded.cfg != model_cfg:

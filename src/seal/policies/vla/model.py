@@ -27,6 +27,10 @@ velocity u = e - a. Training draws t from Beta(1.5, 1) (more weight near the noi
 does), by inverse CDF so that a seeded generator reproduces it; inference integrates from
 t = 1 to 0 with ``flow_steps`` Euler steps.
 
+With ``actions_read_instruction=False`` the expert's condition is computed from a second prefix whose
+instruction is empty: the reasoning is still written from the instruction, but the chunk (and the
+`think` flag) follow from the pixels, the state and the sub-plan text alone.
+
 The non-reasoning twin (``reasoning=False``, the pi0 baseline) is the same network without the
 reasoning segment: no text loss, no think head; the expert attends to the prefix only.
 
@@ -72,6 +76,10 @@ class VLAConfig:
     max_reasoning_tokens: int = 112  # <think> + reasoning + <act> (LIBERO-10/90 labels: at most 94)
     horizon: int = PREDICT_HORIZON
     reasoning: bool = True  # False: the non-reasoning twin (pi0 baseline)
+    # False: the action expert (and the think flag read beside it) sees the prefix with an empty
+    # instruction, so a chunk depends on the cameras, the state and the sub-plan text alone. A reworded
+    # instruction then changes the actions only through the plan the model wrote for it (issue 31).
+    actions_read_instruction: bool = True
     text_weight: float = 0.5
     action_weight: float = 0.5
     think_weight: float = 0.1
@@ -81,6 +89,9 @@ class VLAConfig:
         if self.image_size % self.patch or self.patch & (self.patch - 1) or self.patch < 2:
             raise InvalidInput(f"patch must be a power of two >= 2 dividing image_size; got patch={self.patch}, "
                                f"image_size={self.image_size}")
+        if not self.reasoning and not self.actions_read_instruction:
+            raise InvalidInput("actions_read_instruction=False needs a reasoning model: without a sub-plan the "
+                               "twin's actions would have nothing that names the task")
         if self.d_model % self.n_heads or self.d_expert % self.expert_heads:
             raise InvalidInput("d_model and d_expert must be multiples of their head counts")
         if self.total_tokens > TOKEN_BUDGET:
@@ -427,7 +438,10 @@ class VLAModel(nn.Module):
             total = total + cfg.text_weight * text
         cond = self.condition(seq, act_pos)
         if cond.think_logit is not None:
-            think = F.binary_cross_entropy_with_logits(cond.think_logit.float(), batch["think"].float())
+            think = F.binary_cross_entropy_with_logits(cond.think_logit.float(), batch["think"].float(),
+                                                       reduction="none")
+            tw = batch["think_mask"].float() if "think_mask" in batch else torch.ones_like(think)
+            think = (think * tw).sum() / tw.sum().clamp_min(1.0)
             metrics["think"] = think.detach()
             total = total + cfg.think_weight * think
         # flow matching on the normalised chunk; padded steps and think samples carry no loss

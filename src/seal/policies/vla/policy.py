@@ -155,23 +155,24 @@ class VLAPolicy:
         return [ActionChunk(actions=a.astype(np.float32), think=bool(t)) for a, t in zip(actions, think)]
 
     # -- building blocks (also used by `seal bench vla` and the trainer's evaluation) ---------------
-    def _inputs(self, obs_batch: Sequence[Observation]) -> dict[str, torch.Tensor]:
+    def _inputs(self, obs_batch: Sequence[Observation], instruction: bool = True) -> dict[str, torch.Tensor]:
         size, dev = self.cfg.image_size, self.model.device
         for o in obs_batch:
             if o.agent is None or o.wrist is None:
                 raise InvalidInput("the VLA needs both camera images; observe with images=True")
         agent = np.stack([resize_images(o.agent, size) for o in obs_batch])  # sizes may differ per row
         wrist = np.stack([resize_images(o.wrist, size) for o in obs_batch])
-        prompts = [o.prompt or self._instruction for o in obs_batch]
+        prompts = [o.prompt or self._instruction if instruction else "" for o in obs_batch]
         ids = [instruction_ids(self.tok, p, self.cfg.max_instruction_tokens) for p in prompts]
         return {"agent": torch.from_numpy(agent).to(dev), "wrist": torch.from_numpy(wrist).to(dev),
                 "state": torch.as_tensor(np.stack([np.asarray(o.state, np.float32) for o in obs_batch])).to(dev),
                 "instr_ids": torch.from_numpy(np.stack([i for i, _ in ids])).to(dev),
                 "instr_valid": torch.from_numpy(np.stack([v for _, v in ids])).to(dev)}
 
-    def encode(self, obs_batch: Sequence[Observation]):
-        """The prefix (images, state, instruction) of each observation, as one batch."""
-        x = self._inputs(obs_batch)
+    def encode(self, obs_batch: Sequence[Observation], instruction: bool = True):
+        """The prefix (images, state, instruction) of each observation, as one batch; ``instruction=False``
+        leaves the instruction empty (the action prefix of a model whose actions follow the plan alone)."""
+        x = self._inputs(obs_batch, instruction)
         return self.model.encode_prefix(x["agent"], x["wrist"], x["state"], x["instr_ids"], x["instr_valid"])
 
     def decode(self, prefix) -> str:
@@ -192,7 +193,7 @@ class VLAPolicy:
 
     def condition(self, obs_batch: Sequence[Observation], reasoning: Reasoning | None):
         """Prefix (+ the reasoning, teacher-forced) of each observation -> the expert's condition."""
-        seq = self.encode(obs_batch)
+        seq = self.encode(obs_batch, instruction=self.cfg.actions_read_instruction)
         if not self.cfg.reasoning:
             return self.model.condition(seq)
         text = reasoning.text() if reasoning is not None else ""
