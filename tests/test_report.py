@@ -312,6 +312,27 @@ def test_report_cli(store_path, tmp_path):
     assert "### composition: success rate" in md and "### libero_10" not in md and "| libero_10 |" not in md
 
 
+def test_report_some_methods(store_path, tmp_path, capsys):
+    from seal.cli import main
+    from seal.report.data import ReportData
+
+    everyone = ReportData(store_path).methods
+    first, other = everyone[0], everyone[-1]
+    out = tmp_path / "one_method"
+    assert main(["report", str(store_path), "--out", str(out), "--media", "none", "--no-episodes",
+                 "--methods", first.label.upper()]) == 0
+    md = (out / "report.md").read_text()
+    assert f"| {first.label} |" in md and f"| {other.label} |" not in md
+    kept = ReportData(store_path, methods=[first.config_hash[:6], other.config_hash[:6]]).methods
+    assert [m.config_hash for m in kept] == [first.config_hash, other.config_hash]
+    part = other.spec_label[:4]  # a part of the stored method string keeps every configuration that has it
+    assert {m.config_hash for m in ReportData(store_path, methods=[part]).methods} == \
+        {m.config_hash for m in everyone if part in m.spec_label}
+    assert main(["report", str(store_path), "--out", str(out), "--methods", "policy_ckpt=nothing"]) == 2
+    err = capsys.readouterr().err
+    assert "'policy_ckpt=nothing' names no method" in err and first.label in err
+
+
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 
 

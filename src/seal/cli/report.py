@@ -18,6 +18,9 @@ def add(sub) -> None:
                      help="the paper's training set shown beside ours: libero_10 | libero_100 | libero_100_basket")
     rep.add_argument("--no-episodes", action="store_true", help="skip the per-episode pages")
     rep.add_argument("--suites", default="", help="comma-separated suites to report (default: all in the database)")
+    rep.add_argument("--methods", default="",
+                     help="';'-separated method configurations to report, each a readable label, a part of the "
+                          "stored method string (policy_ckpt=563400068f48) or a config-hash prefix (default: all)")
     rep.set_defaults(func=_cmd_report)
 
 
@@ -31,6 +34,7 @@ def _cmd_report(args) -> int:
         job = bar.add_task("pages", total=None)
         paths = write_report(args.db, out, runs_dir=args.runs, media=args.media, paper_training=args.paper_training,
                              episodes=not args.no_episodes, suites=[x for x in args.suites.split(",") if x] or None,
+                             methods=[x for x in args.methods.split(";") if x.strip()] or None,
                              progress=lambda done, total: bar.update(job, completed=done, total=total))
     print(json.dumps({"index": str(paths.index_html), "markdown": str(paths.markdown),
                       "csv": [str(p) for p in paths.csv], "plots": [str(p) for p in paths.plots],

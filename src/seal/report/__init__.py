@@ -31,14 +31,15 @@ class ReportPaths:
 
 def write_report(db: str | Path, out_dir: str | Path, *, runs_dir: str | Path | None = None, media: str = "copy",
                  paper_training: str = DEFAULT_TRAINING, episodes: bool = True, progress=None,
-                 suites: list[str] | None = None) -> ReportPaths:
+                 suites: list[str] | None = None, methods: list[str] | None = None) -> ReportPaths:
     """Read ``db`` and write the report into ``out_dir`` (created; files there are overwritten).
 
     ``runs_dir``: where the trial files are if they moved since the run (default: the stored paths,
     then ``<db without suffix>_runs``). ``media``: ``copy`` videos and grids into the report,
     ``link`` to them relatively, or ``none``. ``paper_training``: the paper's training set whose
     numbers go beside ours. ``progress(done, total)`` is called as episode pages are written.
-    ``suites``: only these suites' trials (default: every suite in the store).
+    ``suites``: only these suites' trials (default: every suite in the store). ``methods``: only the
+    method configurations these items name (`ReportData`; default all).
     """
     from seal.report import causes, html, lift, paper_layout, plots, tables
 
@@ -46,7 +47,7 @@ def write_report(db: str | Path, out_dir: str | Path, *, runs_dir: str | Path | 
         raise InvalidInput(f"unknown media mode {media!r}; valid: {', '.join(html.MEDIA_MODES)}")
     paper = PaperResults.load()
     paper.check_training(paper_training)
-    data = ReportData(db, runs_dir=runs_dir, suites=suites)
+    data = ReportData(db, runs_dir=runs_dir, suites=suites, methods=methods)
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise InvalidInput(f"report output {out} exists and is not a directory")

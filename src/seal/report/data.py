@@ -89,8 +89,11 @@ def succeeded(row: TrialRow) -> bool:
 class ReportData:
     """Everything the report reads from one results database."""
 
-    def __init__(self, db: str | Path, *, runs_dir: str | Path | None = None, suites: list[str] | None = None):
-        """``suites``: report only these (a run still under way in others, say); default all."""
+    def __init__(self, db: str | Path, *, runs_dir: str | Path | None = None, suites: list[str] | None = None,
+                 methods: list[str] | None = None):
+        """``suites``: report only these (a run still under way in others, say); default all.
+        ``methods``: report only the method configurations each item names: its readable label (any case),
+        a part of the stored method string (``policy_ckpt=563400068f48``) or a config-hash prefix; default all."""
         self.db_path = Path(db)
         with ResultStore(self.db_path, create=False) as store:
             self.rows = store.rows()
@@ -106,6 +109,17 @@ class ReportData:
             self.rows = [r for r in self.rows if r.suite in suites]
         self.runs_dir = Path(runs_dir) if runs_dir else Path(str(self.db_path.with_suffix("")) + "_runs")
         self.methods = _method_list(self.rows, registered)
+        if methods:
+            keep = set()
+            for item in methods:
+                hit = {m.config_hash for m in self.methods if _names(m, item)}
+                if not hit:
+                    raise InvalidInput(f"--methods {item!r} names no method in {self.db_path}; it holds: "
+                                       + "; ".join(f"{m.label} ({m.spec_label}, {m.config_hash[:8]})"
+                                                   for m in self.methods))
+                keep |= hit
+            self.rows = [r for r in self.rows if r.config_hash in keep]
+            self.methods = [m for m in self.methods if m.config_hash in keep]
         self.by_hash = {m.config_hash: m for m in self.methods}
         self.suites = sorted({r.suite for r in self.rows},
                              key=lambda s: (SUITE_ORDER.index(s) if s in SUITE_ORDER else len(SUITE_ORDER), s))
@@ -245,6 +259,13 @@ def _method_list(rows: list[TrialRow], registered: dict[str, tuple[str, dict]]) 
         return (rank, paper_rank, m.family, m.k, m.label)
 
     return sorted(out, key=order)
+
+
+def _names(m: MethodInfo, item: str) -> bool:
+    """Whether a `--methods` item names this configuration (see `ReportData`)."""
+    item = item.strip()
+    return (m.label.lower() == item.lower() or item in m.spec_label
+            or (len(item) >= 4 and m.config_hash.startswith(item)))
 
 
 def unique_names(names: dict[str, str], tags: dict[str, str]) -> dict[str, str]:
