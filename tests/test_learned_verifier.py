@@ -571,3 +571,46 @@ def test_averaging_two_seeds_gives_one_checkpoint_of_the_mean_weights(run, data,
                  "--out", str(tmp_path / "x")]) == 2
     assert "in 'image_size'" in capsys.readouterr().err
     assert main(["train", "verifier", "--average", str(tmp_path / "s0"), "--out", str(tmp_path / "one")]) == 2
+
+
+def test_failed_cases_can_weigh_more_and_the_starts_false_passes_most(run, data, tmp_path):
+    """Cost-sensitive training (issue 32): `negative_weight` on every failed case, `hard_negative_weight` on top
+    for the failed cases the initial checkpoint passes; a heavier failure weight pulls the scores down."""
+    from seal.train.verifier import _predict, case_weights
+
+    labels = np.array([1.0, 0.0, 0.0, 1.0, 0.0], np.float32)
+    cfg = VerifierTrainConfig(negative_weight=2.0, hard_negative_weight=3.0)
+    w = case_weights(labels, np.array([0, 1, 2, 4]), cfg, passed_by_init=np.array([True, True, False, True]))
+    assert w.tolist() == [1.0, 6.0, 2.0, 6.0]
+    assert case_weights(labels, np.array([0, 1]), VerifierTrainConfig()).tolist() == [1.0, 1.0]
+    with pytest.raises(InvalidInput, match="hard_negative_weight"):
+        VerifierTrainConfig(hard_negative_weight=0.5)
+
+    mean_score = {}
+    for weight in (0.05, 1.0, 20.0):
+        out = tmp_path / f"neg{weight}"
+        train_verifier(data, out, VerifierTrainConfig(steps=40, batch_size=32, image_size=32, lr=3e-3,
+                                                      holdout_tasks=("libero_10/1",), holdout_inits=0.25,
+                                                      negative_weight=weight))
+        net, config, vocab = load_checkpoint(out)
+        arrays, _ = load_arrays(data, 32)
+        mean_score[weight] = float(_predict(net, arrays, np.arange(len(arrays.label)), vocab,
+                                            int(config["max_words"])).mean())
+    assert mean_score[20.0] < mean_score[1.0] - 0.1 < mean_score[0.05] - 0.2, mean_score
+
+    # hard negatives are mined with the start's own threshold, counted in the manifest (a start that passes
+    # most failures, so that there are some)
+    start = tmp_path / "neg0.05"
+    ft = VerifierTrainConfig(steps=2, batch_size=8, image_size=32, holdout_tasks=("libero_10/1",), holdout_inits=0.25,
+                             hard_negative_weight=4.0)
+    train_verifier(data, tmp_path / "hard", ft, init_from=start)
+    net, config, vocab = load_checkpoint(start)
+    arrays, _ = load_arrays(data, 32)
+    train_idx = split(arrays, ft)["train"]
+    passed = _predict(net, arrays, train_idx, vocab, int(config["max_words"])) >= float(config["threshold"])
+    expected = int((passed & (arrays.label[train_idx] < 0.5)).sum())
+    manifest = json.loads((tmp_path / "hard" / "manifest.json").read_text())
+    assert manifest["case_policies"]["hard_negatives"] == expected and expected > 0, expected
+    with pytest.raises(InvalidInput, match="other settings"):  # the weights are part of what a resume must share
+        train_verifier(data, tmp_path / "hard", VerifierTrainConfig(**{**ft.__dict__, "hard_negative_weight": 2.0}),
+                       init_from=start)

@@ -77,6 +77,12 @@ def add(sub) -> None:
     ver.add_argument("--holdout-inits", type=float, default=0.2,
                      help="fraction of each other task's init states held out")
     ver.add_argument("--image-size", type=int, default=96, help="model input size in pixels")
+    ver.add_argument("--negative-weight", type=float, default=1.0,
+                     help="loss weight of a failed case against 1 for a successful one (> 1 buys precision: a false "
+                          "pass costs SEAL the episode, a refusal a round; default 1)")
+    ver.add_argument("--hard-negative-weight", type=float, default=1.0,
+                     help="with --init-from: failed cases the initial checkpoint passes weigh this much more again "
+                          "(its confident false successes; default 1: off)")
     ver.add_argument("--jitter", type=float, default=0.0,
                      help="augmentation: brightness/contrast factors in [1-j, 1+j] per case (default 0: off)")
     ver.add_argument("--weight-decay", type=float, default=1e-4, help="AdamW weight decay (default 1e-4)")
@@ -169,7 +175,8 @@ def _cmd_train_verifier(args) -> int:
     holdout = tuple(t.strip() for t in (args.holdout_tasks or "").split(",") if t.strip())
     given = {"steps": args.steps, "batch_size": args.batch_size, "lr": args.lr, "seed": args.seed}  # None: defaults
     cfg = VerifierTrainConfig(image_size=args.image_size, holdout_tasks=holdout, holdout_inits=args.holdout_inits,
-                              jitter=args.jitter, weight_decay=args.weight_decay, lr_schedule=args.lr_schedule,
+                              jitter=args.jitter, negative_weight=args.negative_weight,
+                              hard_negative_weight=args.hard_negative_weight, weight_decay=args.weight_decay, lr_schedule=args.lr_schedule,
                               train_seed=args.train_seed, ema=args.ema, save_every_s=args.save_every_min * 60.0,
                               **{k: v for k, v in given.items() if v is not None})
     if args.export_heldout:

@@ -75,6 +75,12 @@ class VerifierTrainConfig:
     # constant-lr run's held-out figures swing by several points between evaluations, so the last
     # raw weights are a draw; the average is steadier. 0: off (the raw weights are the checkpoint).
     ema: float = 0.0
+    # Cost-sensitive loss. With the reasoning VLA a false pass costs SEAL the episode and a refusal costs a
+    # round (docs/verifier.md, the noise sweeps), so a failed case may weigh more than a successful one.
+    negative_weight: float = 1.0
+    # With --init-from: the failed training cases the initial checkpoint passes (its confident false
+    # successes, the hard negatives issue 32 asks for) weigh this much more again. 1: off.
+    hard_negative_weight: float = 1.0
     log_every: int = 20
     eval_every: int = 200
     save_every_s: float = 300.0
@@ -102,6 +108,8 @@ class VerifierTrainConfig:
             raise InvalidInput(f"lr schedule {self.lr_schedule!r} is not one of: constant, cosine")
         if isinstance(self.ema, bool) or not isinstance(self.ema, (int, float, np.number)) or not 0 <= self.ema < 1:
             raise InvalidInput(f"ema decay must be in [0, 1) (0: off; e.g. 0.999), got {self.ema!r}")
+        check_real(self, "negative_weight", lambda v: v > 0, "a finite number > 0 (1: every case alike)")
+        check_real(self, "hard_negative_weight", lambda v: v >= 1, "a finite number >= 1 (1: off)")
         check_integer(self, "log_every", 1)
         check_integer(self, "eval_every", 1)
         check_real(self, "save_every_s", lambda v: v >= 0, "a number of seconds >= 0")
@@ -118,6 +126,9 @@ class VerifierTrainConfig:
             d.pop("train_seed")
         if not self.ema:  # and runs from before the average existed
             d.pop("ema")
+        for k in ("negative_weight", "hard_negative_weight"):  # and before the weights existed
+            if d[k] == 1.0:
+                d.pop(k)
         d["holdout_tasks"] = list(d["holdout_tasks"])
         return d
 
@@ -283,6 +294,18 @@ def export_heldout(data: list[Path], out: Path, cfg: VerifierTrainConfig, *, tra
 
 
 # ---- metrics ----------------------------------------------------------------------------------------------
+def case_weights(labels: np.ndarray, train_idx: np.ndarray, cfg: VerifierTrainConfig,
+                 passed_by_init: np.ndarray | None = None) -> np.ndarray:
+    """The loss weight of each training case (aligned with ``train_idx``): 1 for a success,
+    ``negative_weight`` for a failure, times ``hard_negative_weight`` for a failure the initial
+    checkpoint passes (``passed_by_init``, aligned with ``train_idx``)."""
+    failed = np.asarray(labels)[train_idx] < 0.5
+    w = np.where(failed, cfg.negative_weight, 1.0)
+    if passed_by_init is not None:
+        w = np.where(failed & np.asarray(passed_by_init, bool), w * cfg.hard_negative_weight, w)
+    return w.astype(np.float32)
+
+
 def _predict(net, arrays: CaseArrays, idx: np.ndarray, vocab: WordVocab, max_words: int, batch: int = 256):
     probs = []
     net.eval()
@@ -505,6 +528,13 @@ def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig,
                           "optimizer": opt.state_dict(), "init_digest": init[3]["digest"] if init else None}
                     | ({"raw": net.state_dict()} if cfg.ema else {}))
 
+    weights = case_weights(arrays.label, train_idx, cfg, passed_by_init=(
+        _predict(init[0], arrays, train_idx, init[2], int(init[1]["max_words"])) >= float(init[1]["threshold"])
+        if init and cfg.hard_negative_weight != 1.0 else None))
+    if init and cfg.hard_negative_weight != 1.0:
+        sources["hard_negatives"] = int((weights > cfg.negative_weight).sum())
+    weight_of_case = np.ones(len(arrays.label), np.float32)
+    weight_of_case[train_idx] = weights
     net.train()
     last_save = time.monotonic()
     t0, s0, losses = time.perf_counter(), step, []
@@ -521,7 +551,9 @@ def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig,
             for group in opt.param_groups:
                 group["lr"] = cfg.lr_at(step)
             logits = net(*_tensors(arrays, idx, vocab, max_words, shifts, photo))
-            loss = F.binary_cross_entropy_with_logits(logits, torch.from_numpy(arrays.label[idx]))
+            w = torch.from_numpy(weight_of_case[idx])
+            loss = (F.binary_cross_entropy_with_logits(logits, torch.from_numpy(arrays.label[idx]), reduction="none")
+                    * w).sum() / w.sum()
             opt.zero_grad()
             loss.backward()
             opt.step()
