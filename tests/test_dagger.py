@@ -219,6 +219,14 @@ def test_round_log_keeps_one_row_per_round_and_draws_them(tmp_path):
     rows = [json.loads(line) for line in log.read_text().splitlines()]
     assert [(r["round"], r["rollout_success"], r["episodes"]) for r in rows] == [("0", 0.1, 20), ("1", 0.35, 20)]
     assert png == log.with_suffix(".png") and png.stat().st_size > 10_000
+    # a twin's round has no sub-plan figures: drawn as a gap; the plot is redrawn from the log alone
+    log_round(log, "twin", {"ckpt": "t", "rollouts": [{}] * 20, "rollout_success": 0.15})
+    png.unlink()
+    from seal.cli import main
+
+    assert main(["bench", "vla", "--round-log", str(log), "--redraw"]) == 0
+    assert png.stat().st_size > 10_000
+    assert main(["bench", "vla", "--round-log", str(tmp_path / "none.jsonl"), "--redraw"]) == 2
 
 
 @pytest.mark.parametrize("runner", ["seal.demos:_run_parallel", "seal.dagger:collect_dagger"])

@@ -113,6 +113,8 @@ def _median_ms(fn, reps: int) -> float:
 
 
 def run(args) -> dict:
+    if getattr(args, "redraw", False):
+        return redraw_rounds(args.round_log)
     import torch
 
     from seal.policies.base import Reasoning
@@ -389,6 +391,21 @@ def check_reference(ckpt: str, *, record: bool = False) -> dict:
             "manifest_digest": shipped["digest"], "max_abs_action_diff": round(float(gap.max()) if n else 0.0, 6),
             # the first executed step whose action differs by more than 1e-3 (None: never): how soon it drifts
             "first_step_apart": int(apart[0]) if len(apart) else None}
+
+
+def redraw_rounds(log: str | None) -> dict:
+    """`seal bench vla --round-log LOG --redraw`: the per-round plot drawn again from the log alone."""
+    import json
+
+    from seal.report.plots import rounds_plot
+
+    if not log or not Path(log).is_file():
+        raise InvalidInput(f"--redraw needs --round-log naming an existing log (a `seal bench vla --rollouts` "
+                           f"output); got {log!r}")
+    rows = [json.loads(line) for line in Path(log).read_text().splitlines() if line.strip()]
+    if not rows:
+        raise InvalidInput(f"{log} holds no rounds yet")
+    return {"round_log": str(log), "rounds": len(rows), "round_plot": str(rounds_plot(rows, Path(log).with_suffix(".png")))}
 
 
 def log_round(log: Path, name: str, out: dict) -> Path:

@@ -47,6 +47,8 @@ def add(sub) -> None:
     bench.add_argument("--round-log", default=None, metavar="ROUNDS.jsonl",
                        help="vla --rollouts: append the held-out figures to this log as --round-name and redraw "
                             "ROUNDS.png (success, on-policy sub-plan accuracy, alignment per DAgger round)")
+    bench.add_argument("--redraw", action="store_true",
+                       help="vla --round-log: redraw ROUNDS.png from the log and stop (nothing is measured)")
     bench.add_argument("--round-name", default=None, help="vla --round-log: the round's label (default: the checkpoint)")
     bench.add_argument("--rollouts", type=INDEX, default=0,
                        help="vla with --ckpt: closed-loop episodes per task on fresh sampled starts (default 0: none)")

@@ -148,7 +148,7 @@ def rounds_plot(rows: list[dict], path, *, title: str = "On-policy rounds: the r
     closed-loop success with its Wilson 95% interval, on-policy sub-plan accuracy and alignment."""
     from seal.report.stats import wilson
 
-    fig = Figure(figsize=(7.5, 4.2), dpi=110)
+    fig = Figure(figsize=(7.5, 4.8), dpi=110)
     FigureCanvasAgg(fig)
     ax = fig.add_subplot(1, 1, 1)
     xs = list(range(len(rows)))
@@ -160,7 +160,9 @@ def rounds_plot(rows: list[dict], path, *, title: str = "On-policy rounds: the r
     for key, label, marker in (("onpolicy_subplan_accuracy", "on-policy sub-plan accuracy", "s"),
                                ("onpolicy_alignment", "alignment (committed sub-plans achieved)", "^"),
                                ("rollout_subgoals", "goal atoms holding at the end", "D")):
-        ax.plot(xs, [100 * (r.get(key) or 0.0) for r in rows], marker=marker, label=label)
+        # a figure a round does not have (the twin writes no sub-plans) is a gap, not a zero
+        ax.plot(xs, [100 * r[key] if r.get(key) is not None else float("nan") for r in rows], marker=marker,
+                label=label)
     # round names carry the variant ("1 (no instruction dropout)"): wrapped so neighbours do not overlap
     ax.set_xticks(xs, [textwrap.fill(str(r["round"]), 14) for r in rows], fontsize=8)
     ax.set_xlabel("round")
@@ -168,7 +170,7 @@ def rounds_plot(rows: list[dict], path, *, title: str = "On-policy rounds: the r
     ax.set_ylim(0, 100)
     ax.grid(alpha=0.3)
     ax.set_title(title, fontsize=10)
-    ax.legend(loc="upper left", fontsize=8)
-    fig.tight_layout()
+    fig.legend(*ax.get_legend_handles_labels(), loc="lower center", ncol=2, fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0, 0.1, 1, 1))  # the legend below the axes: it hid the first round's points
     fig.savefig(path)
     return Path(path)
