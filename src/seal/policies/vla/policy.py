@@ -162,7 +162,7 @@ class VLAPolicy:
                 raise InvalidInput("the VLA needs both camera images; observe with images=True")
         agent = np.stack([resize_images(o.agent, size) for o in obs_batch])  # sizes may differ per row
         wrist = np.stack([resize_images(o.wrist, size) for o in obs_batch])
-        prompts = [o.prompt or self._instruction if instruction else "" for o in obs_batch]
+        prompts = [(o.prompt or self._instruction) if instruction else "" for o in obs_batch]
         ids = [instruction_ids(self.tok, p, self.cfg.max_instruction_tokens) for p in prompts]
         return {"agent": torch.from_numpy(agent).to(dev), "wrist": torch.from_numpy(wrist).to(dev),
                 "state": torch.as_tensor(np.stack([np.asarray(o.state, np.float32) for o in obs_batch])).to(dev),
