@@ -585,6 +585,9 @@ def test_failed_cases_can_weigh_more_and_the_starts_false_passes_most(run, data,
     assert case_weights(labels, np.array([0, 1]), VerifierTrainConfig()).tolist() == [1.0, 1.0]
     with pytest.raises(InvalidInput, match="hard_negative_weight"):
         VerifierTrainConfig(hard_negative_weight=0.5)
+    with pytest.raises(InvalidInput, match="--init-from"):  # no start, no false passes to mine: refused at once
+        train_verifier(data, tmp_path / "no_start", VerifierTrainConfig(hard_negative_weight=2.0))
+    assert not (tmp_path / "no_start").exists()
 
     mean_score = {}
     for weight in (0.05, 1.0, 20.0):

@@ -460,6 +460,9 @@ def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig,
     it lacks (`grow_vocabulary`; listed in the manifest's ``init_from.added_words``), so a fine-tune
     learns the words its start never saw (task-level instructions: "both", "put", ...)."""
     # (the settings were checked when cfg was made: bad ones fail before the images are decoded)
+    if cfg.hard_negative_weight != 1.0 and not init_from:
+        raise InvalidInput("--hard-negative-weight weighs the failed cases a starting checkpoint passes; give one "
+                           "with --init-from (or leave the weight at 1)")
     if threads:
         torch.set_num_threads(threads)
     out = Path(out)
@@ -528,11 +531,12 @@ def train_verifier(data: Path | list[Path], out: Path, cfg: VerifierTrainConfig,
                           "optimizer": opt.state_dict(), "init_digest": init[3]["digest"] if init else None}
                     | ({"raw": net.state_dict()} if cfg.ema else {}))
 
-    weights = case_weights(arrays.label, train_idx, cfg, passed_by_init=(
-        _predict(init[0], arrays, train_idx, init[2], int(init[1]["max_words"])) >= float(init[1]["threshold"])
-        if init and cfg.hard_negative_weight != 1.0 else None))
-    if init and cfg.hard_negative_weight != 1.0:
-        sources["hard_negatives"] = int((weights > cfg.negative_weight).sum())
+    passed = None
+    if cfg.hard_negative_weight != 1.0:  # the start's own verdicts, at its own threshold
+        passed = _predict(init[0], arrays, train_idx, init[2], int(init[1]["max_words"])) >= float(init[1]["threshold"])
+    weights = case_weights(arrays.label, train_idx, cfg, passed_by_init=passed)
+    if passed is not None:
+        sources["hard_negatives"] = int((passed & (arrays.label[train_idx] < 0.5)).sum())
     weight_of_case = np.ones(len(arrays.label), np.float32)
     weight_of_case[train_idx] = weights
     net.train()

@@ -313,8 +313,13 @@ class Batcher:
         self.ends = ends
 
     def batch(self, frames: np.ndarray, reason: np.ndarray, think: np.ndarray, shift: int = 0,
-              gen: torch.Generator | None = None, device: str = "cpu", drop: np.ndarray | None = None) -> dict:
-        """``drop``: per sample, whether its instruction is replaced by an empty one."""
+              gen: torch.Generator | None = None, device: str = "cpu", drop: np.ndarray | None = None,
+              text: np.ndarray | None = None) -> dict:
+        """``drop``: per sample, whether its instruction is replaced by an empty one. ``text`` (models whose
+        actions do not read the instruction): per sample, whether it trains the text, with the instruction,
+        rather than the chunk and think flag without it (``drop`` is then its complement)."""
+        if text is not None:
+            drop = ~text
         order = np.argsort(frames, kind="stable")  # memmap reads in file order, then back
         agent = np.empty((len(frames), *self.cache.agent.shape[1:]), np.uint8)
         wrist = np.empty_like(agent)
@@ -339,6 +344,9 @@ class Batcher:
                "actions": torch.from_numpy(actions), "action_valid": torch.from_numpy(valid),
                "action_mask": torch.from_numpy(~think), "text_mask": torch.from_numpy(~think),
                "think": torch.from_numpy(think.astype(np.float32))}
+        if text is not None:  # each sample trains what the model computes from the prefix it was given
+            out |= {"text_mask": torch.from_numpy(text), "action_mask": torch.from_numpy(~text & ~think),
+                    "think_mask": torch.from_numpy(~text)}
         if self.cfg.reasoning:
             out |= {"reason_ids": torch.from_numpy(self.reason_ids[reason]),
                     "reason_valid": torch.from_numpy(self.reason_valid[reason]),
@@ -736,12 +744,7 @@ def _draw(batcher: Batcher, labels: Labels, train_frames, think_rows, cfg: Train
         # each ordinary sample trains either the text (as `reason` runs: with the instruction) or the chunk and
         # think flag (as `act` runs: without it); one prefix per sample keeps the step cost of the usual recipe
         text = (state.rng.random(len(frames)) < cfg.text_share) & ~think
-        batch = batcher.batch(frames, reason, think, cfg.shift, state.gen, cfg.device, drop=~text)
-        dev = batch["think"].device
-        batch["text_mask"] = torch.from_numpy(text).to(dev)
-        batch["action_mask"] = torch.from_numpy(~text & ~think).to(dev)
-        batch["think_mask"] = torch.from_numpy(~text).to(dev)
-        return batch
+        return batcher.batch(frames, reason, think, cfg.shift, state.gen, cfg.device, text=text)
     drop = None
     if cfg.instruction_dropout and model_cfg.reasoning:  # ordinary samples only: they carry a sub-plan
         drop = (state.rng.random(len(frames)) < cfg.instruction_dropout) & ~think
