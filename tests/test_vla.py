@@ -310,6 +310,14 @@ def test_train_vla_command_and_bench(annotated, tmp_path, capsys):
     assert row["task"] == "libero_10/5" and row["steps"] == 10 and row["start_seed"] >= start_seed("libero_10/5", 1000)
     assert bench["rollout_success"] == 0.0 and set(row["goal_status"]) == {"In(black_book_1, desk_caddy_1_back_contain_region)"}
     assert bench["rollout_render"] == shipped["render"]["mode"] and "rollout_render_note" not in bench
+    assert bench["rollout_suite"] == "libero_10"
+    # a language suite starts where LIBERO-10 starts: same scene, start and goal, other words
+    assert main(["bench", "vla", "--ckpt", str(tmp_path / "ship"), "--trials", "1", "--rollouts", "1",
+                 "--suite", "lang_rephrase", "--tasks", "5", "--max-steps", "10"]) == 0
+    reworded = json.loads(capsys.readouterr().out)
+    (other,) = reworded["rollouts"]
+    assert reworded["rollout_suite"] == "lang_rephrase" and other["task"] == "lang_rephrase/5"
+    assert other["start_seed"] == row["start_seed"] and set(other["goal_status"]) == set(row["goal_status"])
     # a manifest from before the render field: the stock guess is flagged, not silent
     old = tmp_path / "old_ship"
     shutil.copytree(tmp_path / "ship", old)

@@ -21,7 +21,7 @@
   checkpoint manifest's, else the trainer's split) when --annotations is given; else null.
 
 - ``--rollouts N`` (with --ckpt): N closed-loop episodes of the policy alone per task (``--tasks``,
-  default all of LIBERO-10) from fresh sampled starts that neither a recording (episodes below
+  default all of ``--suite``, LIBERO-10 unless told) from fresh sampled starts that neither a recording (episodes below
   `ROLLOUT_EPISODE0`) nor an evaluation (official init states) uses, in ``--render`` mode (default
   fast): ``rollout_success``, ``rollout_subgoals`` (share of the task's goal atoms that hold at the
   end: partial progress) and one row per episode in ``rollouts``. A check of a run in progress
@@ -30,6 +30,9 @@
   (chunk boundaries where the VLA's sub-plan is the one the expert says is next),
   ``onpolicy_alignment`` (sub-plans it acted on that were done when it moved on), ``vla_done_early``
   (episodes it ended by declaring the task done while it was not) and ``teacher_unanswered``.
+  A suite derived from LIBERO-10 (``--suite lang_rephrase``...) starts each task where the LIBERO-10
+  task it derives from starts (`rollout_start_seed`): in the language suites the scene, the start and
+  the goal are the same and only the instruction's words differ, episode for episode.
 - ``--size NAME``: without --ckpt, time the preset ``SIZES[NAME]`` instead of the default config;
 - ``--sizes S,M,L``: ``train_grid``, one row per preset x (bf16, fp32) x (1, 2 threads) with the
   median seconds per training step at batch 32 (how the default config was chosen).
@@ -50,6 +53,14 @@ from seal.benchmarks.common import median_ms
 from seal.errors import InvalidInput
 
 ROLLOUT_EPISODE0 = 1000  # rollout starts: start_seed(task, 1000 + e); recordings use episodes below 1000
+
+
+def rollout_start_seed(task, e: int) -> int:
+    """The seed of held-out start ``e`` of ``task`` (a `TaskSpec`): a derived suite's task draws it from
+    the LIBERO-10 task it derives from, so its rollouts pair start for start with LIBERO-10's."""
+    from seal.demos import start_seed
+
+    return start_seed(task.base_key or task.key, ROLLOUT_EPISODE0 + e)
 
 
 # Candidate sizes (fields of VLAConfig that differ from its defaults); "M" is the default.
@@ -243,7 +254,7 @@ def run(args) -> dict:
                                           f"{render!r} (pass --render to choose)")
             print(f"seal: warning: {out['rollout_render_note']}", file=sys.stderr, flush=True)
         out |= rollouts(str(path), tasks=args.tasks, n=int(args.rollouts), render=render,
-                        max_steps=getattr(args, "max_steps", None))
+                        suite=getattr(args, "suite", None) or "libero_10", max_steps=getattr(args, "max_steps", None))
         if getattr(args, "round_log", None):
             out["round_plot"] = str(log_round(Path(args.round_log), args.round_name or str(path), out))
     return out
@@ -252,7 +263,6 @@ def run(args) -> dict:
 def rollouts(ckpt: str, *, tasks: str, n: int, render: str, suite: str = "libero_10", max_steps: int | None = None,
              progress=None) -> dict:
     """The policy alone, closed loop, on fresh sampled starts (see the module docstring)."""
-    from seal.demos import start_seed
     from seal.episode import run_policy_episode
     from seal.policies.vla.policy import VLAPolicy
     from seal.sim.suites import parse_task_ids, task_count
@@ -274,7 +284,7 @@ def rollouts(ckpt: str, *, tasks: str, n: int, render: str, suite: str = "libero
         try:
             for e in range(n):
                 r = run_policy_episode(world, policy, init_index=ROLLOUT_EPISODE0 + e, max_steps=max_steps,
-                                       start_seed=start_seed(world.task.key, ROLLOUT_EPISODE0 + e))
+                                       start_seed=rollout_start_seed(world.task, e))
                 held = list(r.goal_status.values())
                 rows.append({"task": world.task.key, "start_seed": r.start_seed, "success": bool(r.success),
                              "subgoals": round(sum(held) / len(held), 3) if held else 0.0, "steps": r.steps,
@@ -286,7 +296,7 @@ def rollouts(ckpt: str, *, tasks: str, n: int, render: str, suite: str = "libero
             world.close()
     return {"rollout_success": round(float(np.mean([r["success"] for r in rows])), 3),
             "rollout_subgoals": round(float(np.mean([r["subgoals"] for r in rows])), 3),
-            "rollout_render": render, "rollouts": rows}
+            "rollout_suite": suite, "rollout_render": render, "rollouts": rows}
 
 
 def _labelled_rollouts(ckpt: str, ids: list[int], *, n: int, render: str, suite: str, max_steps: int | None,
@@ -295,7 +305,6 @@ def _labelled_rollouts(ckpt: str, ids: list[int], *, n: int, render: str, suite:
     reaches (`seal.dagger`, beta 0: the expert never acts): success, sub-goals, and how its reasoning held
     up on its own states (sub-plan accuracy against the expert, alignment of the sub-plans it acted on)."""
     from seal.dagger import DaggerJob, release_cached, run_dagger_episode
-    from seal.demos import start_seed
     from seal.policies.vla.checkpoint import read_config
     from seal.policies.vla.locate import resolve_checkpoint
     from seal.sim.suites import get_task
@@ -305,10 +314,11 @@ def _labelled_rollouts(ckpt: str, ids: list[int], *, n: int, render: str, suite:
     rows = []
     try:
         for task_id in ids:
-            key = get_task(suite, task_id).key
+            task = get_task(suite, task_id)
+            key = task.key
             for e in range(n):
                 job = DaggerJob(suite, task_id, ROLLOUT_EPISODE0 + e, 0, str(where), 0.0, render, size, max_steps,
-                                start_seed=start_seed(key, ROLLOUT_EPISODE0 + e),
+                                start_seed=rollout_start_seed(task, e),
                                 closed_loop=False)  # only the labels' text is scored here
                 _, a, _, _ = run_dagger_episode(job)
                 rows.append({"task": key, "start_seed": a["start_seed"], "success": a["success"], "steps": a["steps"],
@@ -330,7 +340,7 @@ def _labelled_rollouts(ckpt: str, ids: list[int], *, n: int, render: str, suite:
             "onpolicy_alignment": round(sum((r["alignment"] or 0) * r["committed"] for r in rows) / max(committed, 1), 4),
             "vla_done_early": sum(r["ended"] == "vla_done" for r in rows),
             "teacher_unanswered": round(sum(r["invalid_labels"] for r in rows) / max(frames, 1), 4),
-            "rollout_render": render, "rollouts": rows}
+            "rollout_suite": suite, "rollout_render": render, "rollouts": rows}
 
 
 REFERENCE = {"suite": "libero_10", "task": 5, "episode": 999, "steps": 40}  # a start no recording or rollout uses
@@ -415,7 +425,7 @@ def log_round(log: Path, name: str, out: dict) -> Path:
 
     from seal.report.plots import rounds_plot
 
-    row = {"round": name, "ckpt": out.get("ckpt"), "episodes": len(out["rollouts"]),
+    row = {"round": name, "ckpt": out.get("ckpt"), "suite": out.get("rollout_suite"), "episodes": len(out["rollouts"]),
            **{k: out.get(k) for k in ("rollout_success", "rollout_subgoals", "onpolicy_subplan_accuracy",
                                       "onpolicy_alignment", "vla_done_early", "teacher_unanswered")}}
     rows = [json.loads(line) for line in log.read_text().splitlines() if line.strip()] if log.is_file() else []
