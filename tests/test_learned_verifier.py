@@ -257,7 +257,7 @@ def test_without_a_shipped_checkpoint_plain_learned_says_how_to_make_one(tmp_pat
         make_verifier("learned")
 
 
-@pytest.mark.parametrize("name", ["learned", "learned:expert", "learned:vla_rounds"])
+@pytest.mark.parametrize("name", ["learned", "learned:expert", "learned:vla_rounds", "learned:dagger_rounds"])
 def test_the_shipped_checkpoints_match_their_manifests_and_judge(data, name):
     import hashlib
 
@@ -276,10 +276,15 @@ def test_the_shipped_checkpoints_match_their_manifests_and_judge(data, name):
     elif name == "learned:vla_rounds":  # shipped until 2026-12-04: the lift table's verifier
         assert CHECKPOINT.digest(directory) == "808648b1ea87"
         assert manifest["case_policies"]["init_from"]["digest"] == "8818a7a2714f"
+    elif name == "learned:dagger_rounds":  # shipped until 2026-12-05: the generalization tables' verifier
+        assert CHECKPOINT.digest(directory) == "c0646b399509"
+        assert manifest["case_policies"]["init_from"]["digest"] == "808648b1ea87"
     else:
         assert directory == DEFAULT_CHECKPOINT
-        assert manifest["case_policies"]["init_from"]["digest"] == "808648b1ea87"
-        assert {s["policy_ckpt_digest"] for s in manifest["case_policies"]["sources"]} >= {"009dcdd7fb35"}
+        assert manifest["case_policies"]["init_from"]["digest"] == "c0646b399509"
+        # the cases of the VLA it steers (round 2), and task-level cases for the done check
+        assert {s["policy_ckpt_digest"] for s in manifest["case_policies"]["sources"]} >= {"563400068f48"}
+        assert manifest["shipped"]["held_out"]["task_level"]["n"] >= 100
         # its held-out figures on the documented protocol travel with it
         assert manifest["shipped"]["held_out"]["subplan_protocol"]["n"] >= 300
     verifier = make_verifier(name)

@@ -72,6 +72,9 @@ def test_the_earlier_shipped_verifier_keeps_a_name_of_its_own():
     second = MethodSpec(policy="vla", verifier="learned:vla_rounds").canonical()
     assert len({current["model"], earlier["model"], second["model"]}) == 3
     assert display_name(second) == "reasoning VLA + SEAL (learned verifier from the first VLA's rounds)"
+    third = MethodSpec(policy="vla", verifier="learned:dagger_rounds").canonical()
+    assert len({current["model"], earlier["model"], second["model"], third["model"]}) == 4
+    assert display_name(third) == "reasoning VLA + SEAL (learned verifier from the DAgger rounds)"
 
 
 def test_a_stricter_verifier_threshold_is_a_method_of_its_own_and_says_so():
