@@ -23,6 +23,7 @@ from seal.report.labels import DEFAULTS, KnownVLA, display_name, shipped_vlas
 from seal.report.paper import paper_method_for
 from seal.report.stats import paired_from_counts
 from seal.steer.method import MethodSpec, settings
+from seal.verify.options import OracleOptions
 
 HEX = re.compile(r"[0-9a-f]{6,}")
 VALUE_DIGEST, LEARNED_DIGEST = "0123456789ab", "fedcba987654"  # stand-ins for checkpoint digests
@@ -59,6 +60,9 @@ def test_standard_methods_read_as_a_person_would_write_them():
         assert not any(ch in got for ch in "[]=") and not HEX.search(got), got
     assert display_name(MethodSpec(method="base").canonical()) == "scripted expert"
     assert display_name(MethodSpec(method="seal").canonical()) == "scripted expert + SEAL (oracle)"
+    # rows stored before the oracle's Held check ran with the pad check: their name says so
+    pads = MethodSpec(method="seal", policy="vla", verifier_options=OracleOptions(grasp="pads")).canonical()
+    assert "grasp" not in pads and display_name(pads) == "reasoning VLA + SEAL (oracle, pad-contact picks)"
     assert display_name(MethodSpec(method="random").canonical()) == "scripted expert + random pick"
 
 

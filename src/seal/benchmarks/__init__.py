@@ -19,7 +19,8 @@ BENCHMARKS = {"sim": "seal.benchmarks.sim:run", "expert": "seal.benchmarks.exper
               "verifier-sweep": "seal.benchmarks.sweep:run",
               "vla": "seal.benchmarks.vla:run",
               "render": "seal.benchmarks.render:run",
-              "labels": "seal.benchmarks.labels:run"}
+              "labels": "seal.benchmarks.labels:run",
+              "grasp": "seal.benchmarks.grasp:run"}
 
 
 def run_benchmark(name: str, args) -> dict:

@@ -12,7 +12,7 @@ def add(sub) -> None:
     from seal.benchmarks import BENCHMARKS
 
     bench.add_argument("what", choices=list(BENCHMARKS))
-    bench.add_argument("--ckpt", default=None, help="vla: checkpoint (default: a random-init model of the default "
+    bench.add_argument("--ckpt", default=None, help="vla/grasp: checkpoint (default: a random-init model of the default "
                                                      "config; 'reason'/'twin': the shipped ones); value: trained value runs "
                                                      "(comma-separated) to score on --data")
     bench.add_argument("--annotations", default=None, help="vla: annotations for the held-out figures")
@@ -51,7 +51,8 @@ def add(sub) -> None:
                        help="vla --round-log: redraw ROUNDS.png from the log and stop (nothing is measured)")
     bench.add_argument("--round-name", default=None, help="vla --round-log: the round's label (default: the checkpoint)")
     bench.add_argument("--rollouts", type=INDEX, default=0,
-                       help="vla with --ckpt: closed-loop episodes per task on fresh sampled starts (default 0: none)")
+                       help="vla with --ckpt: closed-loop episodes per task on fresh sampled starts (default 0: none); "
+                            "grasp: episodes on --task (default 4)")
     bench.add_argument("--tasks", default="", help="comma-separated task ids (expert: all; steer: 0,1,7; runtime: 5; render: 0,3,9; "
                                                   "labels: 0,2,5)")
     bench.add_argument("--trials", type=COUNT, default=None,

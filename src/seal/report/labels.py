@@ -204,7 +204,12 @@ def _verifier_phrase(config: dict) -> str:
         earlier = earlier_verifiers().get(str(model))
         if earlier:
             return earlier
-    return VERIFIER_NAMES.get(verifier, verifier)
+    name = VERIFIER_NAMES.get(verifier, verifier)
+    # The oracle checks a pick with Held (`seal.verify.oracle`); a stored oracle configuration without
+    # "grasp" ran before that check existed, with robosuite's pad check: say so.
+    if verifier in ("oracle", "noisy") and config.get("grasp", "pads") == "pads":
+        return f"{name}, pad-contact picks"
+    return name
 
 
 def _setting_notes(config: dict, vlas: dict[str, KnownVLA]) -> list[str]:
@@ -230,7 +235,7 @@ def _setting_notes(config: dict, vlas: dict[str, KnownVLA]) -> list[str]:
 # Settings the functions above put into words (or deliberately leave out).
 _NAMED = {"knobs", "render", "mode", "mismatch", "subplan_budget", "planner", "planner_model", "annotations", "prompt",
           "k", "rounds", "verifier", "model", "false_positive", "false_negative", "pick", "verify_order",
-          "check_every", "done_check", "value_goal", "threshold"}
+          "check_every", "done_check", "value_goal", "threshold", "grasp"}
 
 
 def _show(value) -> str:

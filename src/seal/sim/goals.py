@@ -3,7 +3,10 @@
 A LIBERO goal is a conjunction such as ``(And (In alphabet_soup_1 basket_1_contain_region)
 (In tomato_sauce_1 basket_1_contain_region))``. Steering verifies sub-plans, and a sub-plan
 usually concerns one conjunct ("place the soup in the basket") or an intermediate fact that is
-not in the goal at all ("pick up the soup"), hence ``Grasped``.
+not in the goal at all ("pick up the soup"), hence ``Grasped`` and ``Held``: robosuite's grasp check
+wants both finger *pads* on the object, and a mug or a moka pot held up by its handle often rests on
+a finger's body instead, so the pad check flickers while the object is plainly in the hand. ``Held``
+counts either surface of each finger (docs/verifier.md, "What the oracle calls a grasp").
 """
 
 from __future__ import annotations
@@ -21,10 +24,11 @@ PREDICATES = {
     "close": "Close",
     "turnon": "TurnOn",
     "turnoff": "TurnOff",
-    "grasped": "Grasped",  # ours: both finger pads touch the object
+    "grasped": "Grasped",  # ours: both finger pads touch the object (robosuite's grasp check)
+    "held": "Held",  # ours: each finger touches the object, with its pad or its body
 }
 ARTICULATION = ("open", "close", "turnon", "turnoff")  # states of a hinge or slide, not of a free object
-ARITY = {"in": 2, "on": 2, "open": 1, "close": 1, "turnon": 1, "turnoff": 1, "grasped": 1}
+ARITY = {"in": 2, "on": 2, "open": 1, "close": 1, "turnon": 1, "turnoff": 1, "grasped": 1, "held": 1}
 _DISPLAY_TO_KEY = {v.lower(): k for k, v in PREDICATES.items()}
 _ATOM_RE = re.compile(r"^\s*([A-Za-z_]+)\s*\(\s*([^()]*?)\s*\)\s*$")
 

@@ -437,6 +437,10 @@ class LiberoWorld:
                 raise InvalidInput(f"unknown object or region {name!r} in {atom} for {self.task.key}; valid: {valid}")
         if atom.predicate == "grasped":
             return bool(env._check_grasp(gripper=env.robots[0].gripper, object_geoms=env.get_object(atom.subject)))
+        if atom.predicate == "held":  # each finger, pad or body, on the object (see seal.sim.goals)
+            fingers = env.robots[0].gripper.important_geoms
+            groups = [fingers["left_finger"], fingers["right_finger"]]
+            return bool(env._check_grasp(gripper=groups, object_geoms=env.get_object(atom.subject)))
         try:
             return bool(env._eval_predicate(atom.to_bddl()))
         except IndexError:

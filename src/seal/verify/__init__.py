@@ -15,13 +15,13 @@ from __future__ import annotations
 from dataclasses import asdict
 
 from seal.registry import Plugin, Registry
-from seal.verify.options import LearnedOptions, VerifierOptions
+from seal.verify.options import LearnedOptions, OracleOptions, VerifierOptions
 
 
-def _oracle(**_):
+def _oracle(*, grasp: str = "fingers", **_):
     from seal.verify.oracle import OracleVerifier
 
-    return OracleVerifier()
+    return OracleVerifier(grasp=grasp)
 
 
 def _vlm(backend: str):
@@ -40,10 +40,10 @@ def _learned(*, model: str | None = None, base_url: str | None = None, seed: int
 
 
 VERIFIERS = Registry("verifier", {
-    "oracle": Plugin(_oracle, VerifierOptions, "simulator truth: the sub-plan's goal atoms"),
+    "oracle": Plugin(_oracle, OracleOptions, "simulator truth: the sub-plan's goal atoms"),
     "openai": Plugin(_vlm("openai"), VerifierOptions, "a VLM judging the views (--model, --base-url)"),
     "gemini": Plugin(_vlm("gemini"), VerifierOptions, "a Gemini VLM judging the views (--model)"),
-    "noisy": Plugin(_oracle, VerifierOptions,  # noisy = the oracle, wrapped below with its rates
+    "noisy": Plugin(_oracle, OracleOptions,  # noisy = the oracle, wrapped below with its rates
                     "the oracle with --false-positive / --false-negative errors"),
     "learned": Plugin(_learned, LearnedOptions, "a small CNN from `seal train verifier` (learned:RUN_DIR)"),
 })

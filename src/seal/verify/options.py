@@ -36,6 +36,16 @@ class VerifierOptions(Options):
 
 
 @dataclass(frozen=True)
+class OracleOptions(VerifierOptions):
+    """The oracle (and the noisy oracle built on it): which contact check a pick sub-plan gets."""
+
+    # Results stored before the Held check existed ran with the pad check: they keep their hashes.
+    grasp: str = option("fingers", "oracle: a pick passes when each finger touches the object (fingers) "
+                                   "or only when both finger pads do (pads, robosuite's check)",
+                        choices=("fingers", "pads"), legacy="pads", strict=True)
+
+
+@dataclass(frozen=True)
 class LearnedOptions(VerifierOptions):
     """The learned verifier: ``model`` is its checkpoint directory (None: the shipped one), also
     written ``learned:RUN_DIR``; the weights, not the path, decide the verdicts."""

@@ -8,6 +8,11 @@ Grounding is by lexicon. A sub-plan is a verb phrase over LIBERO objects:
     close the lowest drawer                  -> Close(white_cabinet_1_bottom_region)
     turn on the cooktop                      -> TurnOn(flat_stove_1)
 
+A pick is checked as ``Held`` by default (each finger touches the object, pad or body), or as
+robosuite's ``Grasped`` (both finger pads) with ``grasp="pads"``, what every result before
+2026-12-05 ran with: the pad check misses a quarter of the states in which the VLA holds a moka pot
+up by its handle (docs/verifier.md).
+
 "it" refers to the object of the latest pick before this sub-plan in the plan list. Text that
 cannot be grounded (unknown verb, no matching object in the scene, an ambiguous reference, a
 place whose destination is another action or the object itself, as garbled reasoning writes)
@@ -20,6 +25,7 @@ import re
 import time
 from dataclasses import dataclass
 
+from seal.errors import InvalidInput
 from seal.sim.lexicon import NAMES, category
 from seal.sim.goals import GoalAtom
 from seal.verify.base import Verdict, VerifyRequest
@@ -213,16 +219,29 @@ def _last_picked(subplan: str, plans: tuple[str, ...], objects: list[str], index
     return None
 
 
+GRASP_CHECKS = ("fingers", "pads")  # Held (each finger, pad or body) / Grasped (both pads)
+
+
 class OracleVerifier:
     """Ground truth from the simulator, reached through the sub-plan's words."""
 
     name = "oracle"
     needs_images = False
 
+    def __init__(self, grasp: str = "fingers") -> None:
+        if grasp not in GRASP_CHECKS:
+            raise InvalidInput(f"unknown grasp check {grasp!r}; valid: {', '.join(GRASP_CHECKS)}")
+        self.grasp = grasp
+
+    def _atoms(self, g: Grounding) -> list[str]:
+        if self.grasp == "pads":
+            return [str(a) for a in g.atoms]
+        return [str(GoalAtom("held", a.args) if a.predicate == "grasped" else a) for a in g.atoms]
+
     def atoms_needed(self, request: VerifyRequest, objects: list[str]) -> list[str]:
         if request.task_level:  # the instruction: the task's own goal, no grounding of its words
             return list(request.goal_atoms)
-        return [str(a) for a in ground(request.subplan, request.plans, objects, request.index).atoms]
+        return self._atoms(ground(request.subplan, request.plans, objects, request.index))
 
     async def verify(self, request: VerifyRequest) -> Verdict:
         return self.judge(request)
@@ -240,7 +259,7 @@ class OracleVerifier:
             g = ground(request.subplan, request.plans, names, request.index)
             if not g.atoms:
                 return Verdict(None, f"unknown: {g.reason}", latency_s=time.perf_counter() - start)
-            atoms = [str(a) for a in g.atoms]
+            atoms = self._atoms(g)
         missing = [a for a in atoms if a not in scene.facts]
         if missing:
             return Verdict(None, f"unknown: the end state lacks {', '.join(missing)}",
