@@ -295,10 +295,19 @@ def test_lift_by_suite_and_the_learned_verifiers_share_of_the_oracles(tmp_path):
             for t in range(4):
                 store.add(TrialRow(method=strict["method"], config_hash=_config_hash(strict), suite=suite, task=task,
                                    trial=t, init_index=t, seed=t, success=t in wins[LEARNED], steps=50, wall_s=1.0))
+        # the oracle with the pad check for picks (rows stored before the Held check): one more oracle
+        # for the learned verifier to be compared with, on LIBERO-10 only, solving one start fewer
+        pads = {k: v for k, v in configs[ORACLE].items() if k != "grasp"}
+        store.register_method(_config_hash(pads), pads["method"], pads)
+        for task in (0, 1):
+            for t in range(4):
+                won = t in LIFT_WINS["libero_10", task][ORACLE] and (task, t) != (1, max(LIFT_WINS["libero_10", 1][ORACLE]))
+                store.add(TrialRow(method=pads["method"], config_hash=_config_hash(pads), suite="libero_10", task=task,
+                                   trial=t, init_index=t, seed=t, success=won, steps=50, wall_s=1.0))
     report = write_report(db, tmp_path / "report", episodes=False)
     by_name = {p.name: p for p in report.csv}
     rows = list(csv.DictReader(by_name["share_of_oracle_lift.csv"].read_text().splitlines()))
-    at_80 = {r["suite"]: r for r in rows if r["seal_config_hash"] == _config_hash(strict)}
+    at_80 = {r["suite"]: r for r in rows if r["seal_config_hash"] == _config_hash(strict) and r["oracle"] == ORACLE}
     assert float(at_80["libero_10"]["share"]) == 0.6 and at_80["libero_10"]["oracle"] == ORACLE
     lifts = {(r["suite"], r["seal"]): r for r in csv.DictReader(by_name["lift_by_suite.csv"].read_text().splitlines())}
     # Oracle: LIBERO-10 6/8 vs 1/8 -> +62.5 pp; Lang-Rephrase 2/8 vs 1/8 -> +12.5 pp, 0.2x of LIBERO-10's.
@@ -312,7 +321,10 @@ def test_lift_by_suite_and_the_learned_verifiers_share_of_the_oracles(tmp_path):
     assert row[-2:] == ["0.20x", "smaller"]
     # Learned verifier: LIBERO-10 4/8 -> (4 - 1) / (6 - 1) = 0.6 of the oracle's lift; Lang-Rephrase
     # 2/8 -> (2 - 1) / (2 - 1) = 1.0; both suites pooled: (6 - 2) / (8 - 2).
-    shares = {r["suite"]: r for r in rows if r["seal"] == LEARNED}
+    shares = {r["suite"]: r for r in rows if r["seal"] == LEARNED and r["oracle"] == ORACLE}
+    # against each oracle the store has, its own row: with the pad-check oracle (5/8), (4 - 1) / (5 - 1)
+    padded = {r["suite"]: r for r in rows if r["seal"] == LEARNED and r["oracle"] == f"{ORACLE[:-1]}, pad-contact picks)"}
+    assert set(padded) == {"libero_10", "all"} and float(padded["libero_10"]["share"]) == 0.75
     assert float(shares["libero_10"]["share"]) == 0.6 and float(shares["lang_rephrase"]["share"]) == 1.0
     assert abs(float(shares["all"]["share"]) - 4 / 6) < 1e-3 and shares["all"]["trials"] == "16"
     assert float(shares["libero_10"]["ci_low"]) <= 0.6 <= float(shares["libero_10"]["ci_high"])

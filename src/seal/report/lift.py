@@ -96,11 +96,11 @@ class ShareRow:
     ci: tuple[float, float] | None  # bootstrap 95% interval of the share over trials
 
 
-def oracle_twin(seal: MethodInfo, methods: list[MethodInfo]) -> MethodInfo | None:
-    """The same SEAL configuration with the oracle verifier (None if the report lacks it, or ``seal``
-    already uses the oracle)."""
+def oracle_twins(seal: MethodInfo, methods: list[MethodInfo]) -> list[MethodInfo]:
+    """The same SEAL configuration with the oracle verifier: one per oracle setting the report has (the
+    pick check, `grasp`), none if ``seal`` already uses the oracle."""
     if seal.method != "seal" or str(seal.config.get("verifier", "oracle")) == "oracle":
-        return None
+        return []
     def rest(config: dict) -> dict:
         return {k: v for k, v in config.items() if k not in VERIFIER_KEYS}
 
@@ -108,8 +108,7 @@ def oracle_twin(seal: MethodInfo, methods: list[MethodInfo]) -> MethodInfo | Non
         return (str(config.get("verifier", "oracle")) == "oracle" and not config.get("model")
                 and not config.get("false_positive") and not config.get("false_negative"))
 
-    return next((m for m in methods if m.method == "seal" and exact_oracle(m.config)
-                 and rest(m.config) == rest(seal.config)), None)
+    return [m for m in methods if m.method == "seal" and exact_oracle(m.config) and rest(m.config) == rest(seal.config)]
 
 
 def share_of_lift(outcomes: np.ndarray, *, draws: int = BOOTSTRAP_DRAWS, seed: int = 0):
@@ -134,11 +133,9 @@ def share_of_lift(outcomes: np.ndarray, *, draws: int = BOOTSTRAP_DRAWS, seed: i
 def share_rows(data: ReportData) -> list[ShareRow]:
     out = []
     for seal in data.methods:
-        oracle = oracle_twin(seal, data.methods)
-        base = base_of(seal, data.methods) if oracle else None
-        if base is None:
-            continue
-        for suite in [*data.suites, None]:
+        base = base_of(seal, data.methods)
+        oracles = oracle_twins(seal, data.methods) if base is not None else []
+        for oracle, suite in ((o, s) for o in oracles for s in [*data.suites, None]):
             triples = data.outcomes([seal.config_hash, oracle.config_hash, base.config_hash], suite)
             if not triples:
                 continue
