@@ -53,6 +53,10 @@ def test_the_oracle_asks_for_held_unless_told_pads(stove_world):
     request.scene = SceneReader(stove_world._env).read({f"Held({POT})": True, f"Grasped({POT})": False})
     assert OracleVerifier().judge(request).success is True
     assert OracleVerifier(grasp="pads").judge(request).success is False
+    # a case recorded before the Held check carries only the pad fact: it is judged by what was recorded
+    request.scene = SceneReader(stove_world._env).read({f"Grasped({POT})": True})
+    verdict = OracleVerifier().judge(request)
+    assert verdict.success is True and verdict.rationale == f"Grasped({POT}) is true"
     with pytest.raises(InvalidInput, match="valid: fingers, pads"):
         OracleVerifier(grasp="palm")
 

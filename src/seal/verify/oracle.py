@@ -227,6 +227,7 @@ class OracleVerifier:
 
     name = "oracle"
     needs_images = False
+    grasp = "fingers"  # also for subclasses that set up their own __init__
 
     def __init__(self, grasp: str = "fingers") -> None:
         if grasp not in GRASP_CHECKS:
@@ -260,6 +261,8 @@ class OracleVerifier:
             if not g.atoms:
                 return Verdict(None, f"unknown: {g.reason}", latency_s=time.perf_counter() - start)
             atoms = self._atoms(g)
+        # A recorded case from before the Held check carries the pad check's truth for a pick: judge it by that
+        atoms = [_recorded(a, scene.facts) for a in atoms]
         missing = [a for a in atoms if a not in scene.facts]
         if missing:
             return Verdict(None, f"unknown: the end state lacks {', '.join(missing)}",
@@ -269,3 +272,13 @@ class OracleVerifier:
         rationale = "; ".join(f"{a} is {'true' if v else 'false'}" for a, v in holds.items())
         return Verdict(ok, rationale, latency_s=time.perf_counter() - start, raw=rationale,
                        score=1.0 if ok else 0.0, extra={"atoms": list(holds)})
+
+
+def _recorded(atom: str, facts: dict) -> str:
+    """``Held(x)`` where the facts carry only ``Grasped(x)`` (verification cases collected with the pad
+    check, before a7bd3f1): that recorded fact; any other atom as it is."""
+    if atom.startswith("Held(") and atom not in facts:
+        pads = "Grasped(" + atom[len("Held("):]
+        if pads in facts:
+            return pads
+    return atom
