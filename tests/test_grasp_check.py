@@ -42,6 +42,14 @@ def test_held_counts_every_pad_grasp_and_the_expert_picks_the_pot(stove_world):
         world.check("Held(no_such_pot_1)")
 
 
+def test_what_the_grasp_bench_reads_from_a_scene(stove_world):
+    from seal.benchmarks.grasp import moved_objects, touches
+
+    stove_world.reset(0)
+    assert moved_objects(stove_world) == ["moka_pot_1", "moka_pot_2"]  # the goal's two In/On subjects
+    assert touches(stove_world._env, POT) == (False, True)  # standing on the stove's table, the gripper away
+
+
 def test_the_oracle_asks_for_held_unless_told_pads(stove_world):
     names = stove_world.objects
     request = VerifyRequest(subplan=PLANS[0], instruction="put both moka pots on the stove", plans=PLANS, index=0)

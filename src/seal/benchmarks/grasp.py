@@ -26,20 +26,11 @@ from seal.errors import InvalidInput
 RISE_M = 0.03  # how far above its start an object must be to count as lifted
 
 
-def _touches(env, obj: str) -> tuple[bool, bool]:
+def touches(env, obj: str) -> tuple[bool, bool]:
     """(touches the gripper, touches anything else) for ``obj``'s collision geoms, now."""
-    model, data = env.sim.model, env.sim.data
-    mine = set(env.get_object(obj).contact_geoms)
+    contacts = env.get_contacts(env.get_object(obj))  # robosuite: geoms touching the object's own
     gripper = set(env.robots[0].gripper.contact_geoms)
-    grip = other = False
-    for i in range(data.ncon):
-        c = data.contact[i]
-        a, b = model.geom_id2name(c.geom1), model.geom_id2name(c.geom2)
-        for x, y in ((a, b), (b, a)):
-            if x in mine and y not in mine:
-                grip |= y in gripper
-                other |= y not in gripper
-    return grip, other
+    return bool(contacts & gripper), bool(contacts - gripper)
 
 
 def moved_objects(world) -> list[str]:
@@ -74,7 +65,7 @@ def run(args) -> dict:
                 for o in objects:
                     z = float(world.object_position(o)[2])
                     z0.setdefault(o, z)
-                    grip, other = _touches(env, o)
+                    grip, other = touches(env, o)
                     up = z - z0[o] > RISE_M and grip and not other
                     grasped, held = world.check(f"Grasped({o})"), world.check(f"Held({o})")
                     c = counts[o]
