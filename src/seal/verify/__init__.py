@@ -15,10 +15,10 @@ from __future__ import annotations
 from dataclasses import asdict
 
 from seal.registry import Plugin, Registry
-from seal.verify.options import LearnedOptions, OracleOptions, VerifierOptions
+from seal.verify.options import GRASP_CHECKS, LearnedOptions, OracleOptions, VerifierOptions
 
 
-def _oracle(*, grasp: str = "fingers", **_):
+def _oracle(*, grasp: str = GRASP_CHECKS[0], **_):
     from seal.verify.oracle import OracleVerifier
 
     return OracleVerifier(grasp=grasp)

@@ -35,6 +35,9 @@ class VerifierOptions(Options):
                                         "OPENAI_BASE_URL)", hash=False)
 
 
+GRASP_CHECKS = ("fingers", "pads")  # the oracle's pick check: Held (each finger, pad or body) / Grasped (both pads)
+
+
 @dataclass(frozen=True)
 class OracleOptions(VerifierOptions):
     """The oracle (and the noisy oracle built on it): which contact check a pick sub-plan gets."""
@@ -42,7 +45,7 @@ class OracleOptions(VerifierOptions):
     # Results stored before the Held check existed ran with the pad check: they keep their hashes.
     grasp: str = option("fingers", "oracle: a pick passes when each finger touches the object (fingers) "
                                    "or only when both finger pads do (pads, robosuite's check)",
-                        choices=("fingers", "pads"), legacy="pads", strict=True)
+                        choices=GRASP_CHECKS, legacy="pads", strict=True)
 
 
 @dataclass(frozen=True)

@@ -10,8 +10,8 @@ Grounding is by lexicon. A sub-plan is a verb phrase over LIBERO objects:
 
 A pick is checked as ``Held`` by default (each finger touches the object, pad or body), or as
 robosuite's ``Grasped`` (both finger pads) with ``grasp="pads"``, what every result before
-2026-12-05 ran with: the pad check misses a quarter of the states in which the VLA holds a moka pot
-up by its handle (docs/verifier.md).
+2026-12-05 ran with: the pad check misses 20-67% of the steps in which the VLA carries a mug or a
+moka pot by its handle (docs/verifier.md, `seal bench grasp`).
 
 "it" refers to the object of the latest pick before this sub-plan in the plan list. Text that
 cannot be grounded (unknown verb, no matching object in the scene, an ambiguous reference, a
@@ -29,6 +29,7 @@ from seal.errors import InvalidInput
 from seal.sim.lexicon import NAMES, category
 from seal.sim.goals import GoalAtom
 from seal.verify.base import Verdict, VerifyRequest
+from seal.verify.options import GRASP_CHECKS
 
 # Words people (and VLAs) use beyond the expert's own lexicon, per object category.
 SYNONYMS: dict[str, tuple[str, ...]] = {
@@ -219,17 +220,14 @@ def _last_picked(subplan: str, plans: tuple[str, ...], objects: list[str], index
     return None
 
 
-GRASP_CHECKS = ("fingers", "pads")  # Held (each finger, pad or body) / Grasped (both pads)
-
-
 class OracleVerifier:
     """Ground truth from the simulator, reached through the sub-plan's words."""
 
     name = "oracle"
     needs_images = False
-    grasp = "fingers"  # also for subclasses that set up their own __init__
+    grasp = GRASP_CHECKS[0]  # also for subclasses that set up their own __init__
 
-    def __init__(self, grasp: str = "fingers") -> None:
+    def __init__(self, grasp: str = GRASP_CHECKS[0]) -> None:
         if grasp not in GRASP_CHECKS:
             raise InvalidInput(f"unknown grasp check {grasp!r}; valid: {', '.join(GRASP_CHECKS)}")
         self.grasp = grasp
