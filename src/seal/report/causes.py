@@ -234,7 +234,8 @@ def pass_display(rows: list[PassRow]) -> Table:
              "held: its goal atoms held in the committed state. Precision with a Wilson 95% interval. SEAL commits "
              "the first candidate of a round that passes, so a verifier's false passes are selected for: this "
              "precision sits below the same verifier's precision on single cases (`seal bench verifier`). The "
-             "oracle's passes hold by construction."]
+             "oracle's passes hold by construction, except picks its Held check passes where the audit's pad "
+             "check (robosuite's Grasped) does not."]
     missing = sum(r.no_trace for r in rows)
     if missing:
         notes.append(f"{missing} trial(s) had no trace on disk and are left out.")
