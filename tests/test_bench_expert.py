@@ -11,9 +11,9 @@ from seal.cli import main
 from seal.errors import InvalidInput
 
 
-def _row(task, knobs, init, success, version="v1"):
+def _row(task, knobs, init, success, version="v1", grip="fingers"):
     return {"suite": "libero_10", "task": task, "knobs": knobs, "init": init, "success": success,
-            "steps": 100 + init, "sim_error": False, "wall_s": 1.0, "version": version}
+            "steps": 100 + init, "sim_error": False, "wall_s": 1.0, "version": version, "grip": grip}
 
 
 def test_summary_reports_fractions_and_failing_inits():
@@ -26,12 +26,26 @@ def test_summary_reports_fractions_and_failing_inits():
     assert out["misaligned_per_task_success"] == {"0": 0.5}
     assert out["misaligned_failed_inits"] == {"0": [0]}
     assert out["mean_steps"] == 100.5
+    assert not any(k.startswith("pads_") for k in out)
+
+
+def test_summary_keeps_the_two_grip_checks_apart():
+    """--grip fingers,pads: the default check's keys are bare, the pad check's prefixed, from the same inits."""
+    rows = [_row(0, "clean", 0, True), _row(0, "clean", 1, True), _row(0, "clean", 0, False, grip="pads"),
+            _row(0, "clean", 1, True, grip="pads"), _row(0, "misaligned", 0, False, grip="pads")]
+    out = bench.summarize(rows, "libero_10", trials=2, first_init=0)
+    assert out["per_task_success"] == {"0": 1.0} and out["pads_per_task_success"] == {"0": 0.5}
+    assert out["pads_failed_inits"] == {"0": [0]} and out["failed_inits"] == {}
+    assert out["pads_misaligned_mean_success"] == 0.0 and "misaligned_mean_success" not in out
 
 
 def test_log_refuses_other_code_and_tolerates_a_torn_last_line(tmp_path):
     log = tmp_path / "log.jsonl"
     log.write_text(json.dumps(_row(0, "clean", 0, True)) + "\n" + '{"suite": "libero_10", "ta')
-    assert list(bench.read_log(log, "v1")) == [("libero_10", 0, "clean", 0, 0.0)]  # rows before --dart: 0
+    assert list(bench.read_log(log, "v1")) == [("libero_10", 0, "clean", 0, 0.0, "fingers")]  # rows before --dart: 0
+    old = {k: v for k, v in _row(0, "clean", 0, True).items() if k != "grip"}
+    log.write_text(json.dumps(old) + "\n")  # a row from before --grip: the expert read the pad check
+    assert list(bench.read_log(log, "v1")) == [("libero_10", 0, "clean", 0, 0.0, "pads")]
     with pytest.raises(InvalidInput, match="code version 'v1'.*another --log"):
         bench.read_log(log, "v2")
     log.write_text("not json\n" + json.dumps(_row(0, "clean", 0, True)) + "\n")
@@ -62,3 +76,5 @@ def test_bad_ranges_are_named(capsys):
     assert "50 init states; --first-init 50 is past them" in capsys.readouterr().err
     assert main(["bench", "expert", "--tasks", "a,b", "--no-misaligned"]) != 0
     assert "comma-separated task ids" in capsys.readouterr().err
+    assert main(["bench", "expert", "--tasks", "0", "--trials", "1", "--no-misaligned", "--grip", "pads,palms"]) != 0
+    assert "--grip must list distinct checks among fingers, pads, got 'pads,palms'" in capsys.readouterr().err

@@ -78,3 +78,25 @@ def test_the_grasp_check_is_a_method_setting_that_keeps_earlier_hashes():
     assert verifier_for(noisy).inner.grasp == "pads"
     with pytest.raises(InvalidInput, match="grasp"):
         parse_methods("seal:policy=vla:verifier=learned:grasp=pads")  # the learned verifier has no such check
+
+
+def test_the_expert_keeps_carrying_what_the_pads_miss(stove_world):
+    """A pot on a finger's body and not on the pads (how the VLA often carries one, `seal bench grasp`): the
+    default expert reads it as in hand and goes on to place it; the pad-check expert (every recording before
+    2026-12-05) took it for not picked, and its DAgger labels said "pick up" while the pot was in the air."""
+    import numpy as np
+
+    from seal.sim.observation import Observation
+
+    stove_world.reset(0)
+    fingers, pads = ScriptedExpert.for_world(stove_world), ScriptedExpert.for_world(stove_world, grip="pads")
+    assert f"Held({POT})" in fingers.privileged_atoms() and f"Grasped({POT})" not in fingers.privileged_atoms()
+    assert f"Grasped({POT})" in pads.privileged_atoms() and f"Held({POT})" not in pads.privileged_atoms()
+    facts = {a: stove_world.check(a) for a in fingers.privileged_atoms() + pads.privileged_atoms()}
+    facts |= {f"Held({POT})": True, f"Grasped({POT})": False}
+    obs = Observation(state=np.zeros(8), prompt=stove_world.instruction, scene=SceneReader(stove_world._env).read(facts))
+    now_fingers, now_pads = fingers.reason(obs).now, pads.reason(obs).now
+    assert now_pads.startswith("pick up") and "moka pot" in now_pads
+    assert not now_fingers.startswith("pick up") and "stove" in now_fingers, now_fingers
+    with pytest.raises(InvalidInput, match="valid: fingers, pads"):
+        ScriptedExpert.for_world(stove_world, grip="palm")

@@ -59,6 +59,8 @@ def test_standard_methods_read_as_a_person_would_write_them():
         assert got == name
         assert not any(ch in got for ch in "[]=") and not HEX.search(got), got
     assert display_name(MethodSpec(method="base").canonical()) == "scripted expert"
+    # the expert before it read Held (every stored scripted-expert row): its own name
+    assert display_name(MethodSpec(method="base", grip="pads").canonical()) == "scripted expert (pad-contact grip)"
     assert display_name(MethodSpec(method="seal").canonical()) == "scripted expert + SEAL (oracle)"
     # rows stored before the oracle's Held check ran with the pad check: their name says so
     pads = MethodSpec(method="seal", policy="vla", verifier_options=OracleOptions(grasp="pads")).canonical()

@@ -55,6 +55,7 @@ from seal.datasets.lerobot import read_jsonl
 from seal.errors import InvalidInput, SealError
 from seal.policies.base import ACTION_HORIZON, PREDICT_HORIZON, Reasoning
 from seal.sim.fast_assets import CACHE_VERSION as FAST_VERSION
+from seal.sim.goals import GRASP_CHECKS
 from seal.sim.suites import get_task, task_count
 
 ATTEMPTS = "attempts.jsonl"
@@ -600,8 +601,11 @@ def collect_dagger(suite: str, out: Path, *, ckpt: str, episodes_per_task: int, 
         raise InvalidInput(f"{where} is a non-reasoning twin: it writes no sub-plans, so its rollouts give no "
                            "verification cases (drop --verifier-cases, or roll out a reasoning VLA)")
     render = render_mode or trained_render(ckpt)["mode"]
+    # teacher_grip: how the teacher tells an object is in the hand (`ScriptedExpert.grip`); collections from
+    # before it existed read the pad check, so they refuse to resume with this teacher rather than mix labels
     settings = {"ckpt_digest": digest, "round": round_, "beta": float(beta), "render_mode": render,
-                "image_size": config.image_size, "suite": suite, "max_steps": max_steps}
+                "image_size": config.image_size, "suite": suite, "max_steps": max_steps,
+                "teacher_grip": GRASP_CHECKS[0]}
     out = Path(out)
     ann = out / ANNOTATIONS_DIR
     info_path = ann / INFO

@@ -23,6 +23,7 @@ import numpy as np
 
 from seal.benchmarks.common import trials_of
 from seal.errors import InvalidInput
+from seal.sim.goals import GRASP_CHECKS
 from seal.sim.suites import get_task, parse_task_ids
 
 _SETTINGS = ("clean", "misaligned")
@@ -30,7 +31,7 @@ _cache: dict = {}  # per worker process: the last task's world (built once per t
 
 
 def _episode(job: tuple) -> dict:
-    suite, task_id, knobs, init, dart = job
+    suite, task_id, knobs, init, dart, grip = job
     from seal.episode import run_policy_episode
     from seal.policies.expert.policy import FailureKnobs, ScriptedExpert
     from seal.sim.world import LiberoWorld
@@ -40,9 +41,10 @@ def _episode(job: tuple) -> dict:
             _cache.pop("world").close()
         _cache["world"], _cache["key"] = LiberoWorld((suite, task_id)), (suite, task_id)
     world = _cache["world"]
-    policy = ScriptedExpert.for_world(world, FailureKnobs.named(knobs))
+    policy = ScriptedExpert.for_world(world, FailureKnobs.named(knobs), grip=grip)
     r = run_policy_episode(world, policy, init_index=init, dart=dart)
-    return {"suite": suite, "task": task_id, "knobs": knobs, "init": init, "dart": dart, "success": bool(r.success),
+    return {"suite": suite, "task": task_id, "knobs": knobs, "init": init, "dart": dart, "grip": grip,
+            "success": bool(r.success),
             "steps": r.steps, "sim_error": bool(r.sim_error), "wall_s": round(r.wall_s, 2)}
 
 
@@ -61,7 +63,7 @@ def code_version() -> str:
 
 
 def read_log(path: Path, version: str) -> dict[tuple, dict]:
-    """Episodes already in ``path``, keyed by (suite, task, knobs, init, dart). Refuses foreign code versions."""
+    """Episodes already in ``path``, keyed by (suite, task, knobs, init, dart, grip). Refuses foreign code versions."""
     done: dict[tuple, dict] = {}
     if not path.exists():
         return done
@@ -70,7 +72,8 @@ def read_log(path: Path, version: str) -> dict[tuple, dict]:
             continue
         try:
             row = json.loads(line)
-            key = (row["suite"], int(row["task"]), row["knobs"], int(row["init"]), float(row.get("dart", 0.0)))
+            key = (row["suite"], int(row["task"]), row["knobs"], int(row["init"]), float(row.get("dart", 0.0)),
+                   row.get("grip", "pads"))
         except (ValueError, KeyError, TypeError):
             if n == len(path.read_text().splitlines()):
                 continue  # a line cut short by a crash mid-write: that episode simply runs again
@@ -84,24 +87,35 @@ def read_log(path: Path, version: str) -> dict[tuple, dict]:
 
 
 def summarize(rows: list[dict], suite: str, trials: int, first_init: int) -> dict:
-    """The benchmark's JSON: per-task success (fractions) per setting, steps, failing inits."""
+    """The benchmark's JSON: per-task success (fractions) per setting, steps, failing inits. Keys of the
+    default grip check carry no prefix; the pad check's are prefixed ``pads_`` (``pads_mean_success``)."""
     out: dict = {"suite": suite, "trials": trials, "first_init": first_init, "episodes": len(rows)}
-    for knobs in _SETTINGS:
-        mine = [r for r in rows if r["knobs"] == knobs]
+    for grip, knobs in [(g, k) for g in GRASP_CHECKS for k in _SETTINGS]:
+        mine = [r for r in rows if r["knobs"] == knobs and r.get("grip", "pads") == grip]
         if not mine:
             continue
         tasks = sorted({r["task"] for r in mine})
         per_task = {t: [r for r in mine if r["task"] == t] for t in tasks}
         success = {str(t): round(float(np.mean([r["success"] for r in rs])), 3) for t, rs in per_task.items()}
         failed = {str(t): sorted(r["init"] for r in rs if not r["success"]) for t, rs in per_task.items()}
-        prefix = "" if knobs == "clean" else "misaligned_"
+        prefix = ("" if grip == GRASP_CHECKS[0] else f"{grip}_") + ("" if knobs == "clean" else "misaligned_")
         out[f"{prefix}per_task_success"] = success
         out[f"{prefix}mean_success"] = round(float(np.mean(list(success.values()))), 3)
         out[f"{prefix}failed_inits"] = {t: v for t, v in failed.items() if v}
         if knobs == "clean":
-            out["mean_steps"] = round(float(np.mean([r["steps"] for r in mine])), 1)
+            out[f"{prefix}mean_steps"] = round(float(np.mean([r["steps"] for r in mine])), 1)
     out["sim_errors"] = sum(r["sim_error"] for r in rows)
     return out
+
+
+def _grips(text: str) -> list[str]:
+    """``--grip fingers,pads``: the expert's in-hand checks to run, each on the same inits (the first is
+    the one the progress bar shows)."""
+    grips = [g.strip() for g in text.split(",") if g.strip()]
+    bad = [g for g in grips if g not in GRASP_CHECKS]
+    if bad or not grips or len(set(grips)) != len(grips):
+        raise InvalidInput(f"--grip must list distinct checks among {', '.join(GRASP_CHECKS)}, got {text!r}")
+    return grips
 
 
 def run(args) -> dict:
@@ -112,6 +126,7 @@ def run(args) -> dict:
     if first < 0:
         raise InvalidInput(f"--first-init must be >= 0, got {first}")
     settings = ["clean"] + ([] if args.no_misaligned else ["misaligned"])
+    grips = _grips(getattr(args, "grip", None) or GRASP_CHECKS[0])
     from seal.episode import check_dart
 
     dart = check_dart(getattr(args, "dart", 0.0) or 0.0)
@@ -121,8 +136,8 @@ def run(args) -> dict:
         last = min(first + trials, n_inits)
         if last <= first:
             raise InvalidInput(f"task {t} of {suite} has {n_inits} init states; --first-init {first} is past them")
-        jobs += [(suite, t, k, i, dart) for k in settings for i in range(first, last)]
-    jobs.sort(key=lambda j: (j[1], j[2], j[3]))  # a task's episodes next to each other: one world per worker
+        jobs += [(suite, t, k, i, dart, g) for k in settings for g in grips for i in range(first, last)]
+    jobs.sort(key=lambda j: (j[1], j[2], j[3], j[5]))  # a task's episodes next to each other: one world per worker
 
     version = code_version()
     log = Path(args.log) if getattr(args, "log", None) else None
@@ -144,7 +159,7 @@ def run(args) -> dict:
                 fh.write(json.dumps(row) + "\n")
                 fh.flush()
                 rows.append(row)
-                clean = [r["success"] for r in rows if r["knobs"] == "clean"]
+                clean = [r["success"] for r in rows if r["knobs"] == "clean" and r["grip"] == grips[0]]
                 progress.update(bar, advance=1, rate=f"{np.mean(clean):.2f}" if clean else "-")
     out = summarize(rows, suite, trials, first)
     out["dart"] = dart

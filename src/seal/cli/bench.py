@@ -62,6 +62,10 @@ def add(sub) -> None:
     bench.add_argument("--max-steps", type=COUNT, default=None,
                        help="steer/runtime/eval: control steps per episode (default: the suite's limit)")
     bench.add_argument("--no-misaligned", action="store_true", help="expert: skip the misaligned setting")
+    bench.add_argument("--grip", default=None,
+                       help="expert: how it tells an object is in its hand, one or both of fingers (Held, the default) "
+                            "and pads (robosuite's Grasped, the expert before 2026-12-05), e.g. fingers,pads; "
+                            "each runs on the same inits")
     bench.add_argument("--stock-step", action="store_true",
                        help="eval: run the SEAL trials again on robosuite's own control step and report the fast "
                             "step's trials/hour ratio (same episodes, one run)")

@@ -12,6 +12,7 @@ from typing import ClassVar
 
 from seal.errors import InvalidInput
 from seal.options import PORT, POSITIVE, Options, option
+from seal.sim.goals import GRASP_CHECKS
 
 KNOBS = ("clean", "misaligned")
 PLANNERS = ("", "annotations", "vlm")
@@ -22,6 +23,11 @@ TRANSPORTS = ("auto", "batched", "concurrent", "sequential")
 @dataclass(frozen=True)
 class ScriptedOptions(Options):
     knobs: str = option("misaligned", "scripted expert's failure setting", choices=KNOBS, what="knobs setting")
+    # Every result stored before the expert read Held ran with the pad check: they keep their hashes.
+    # (not "grasp": a method's settings reach every slot that has the name, and the oracle's is its pick check)
+    grip: str = option("fingers", "scripted expert: an object is in its hand when each finger touches it (fingers) "
+                                   "or only when both finger pads do (pads, robosuite's check)",
+                        choices=GRASP_CHECKS, legacy="pads", strict=True, what="grasp check")
 
 
 @dataclass(frozen=True)

@@ -144,7 +144,10 @@ def policy_name(config: dict, vlas: dict[str, KnownVLA]) -> str:
     """Who acts: "scripted expert", "reasoning VLA", "twin", "VLA checkpoint 1a2b3c", ..."""
     policy = str(config.get("policy", ""))
     if policy == "scripted":
-        return "clean scripted expert" if config.get("knobs") == "clean" else "scripted expert"
+        name = "clean scripted expert" if config.get("knobs") == "clean" else "scripted expert"
+        # A stored configuration without "grip" ran before the expert read Held: it took an object carried on
+        # a finger's body for dropped (`ScriptedExpert.grip`). Two experts, two names.
+        return f"{name} (pad-contact grip)" if config.get("grip", "pads") == "pads" else name
     if policy == "vla":
         digest = str(config.get("policy_ckpt", ""))
         known = vlas.get(digest)
@@ -235,7 +238,7 @@ def _setting_notes(config: dict, vlas: dict[str, KnownVLA]) -> list[str]:
 # Settings the functions above put into words (or deliberately leave out).
 _NAMED = {"knobs", "render", "mode", "mismatch", "subplan_budget", "planner", "planner_model", "annotations", "prompt",
           "k", "rounds", "verifier", "model", "false_positive", "false_negative", "pick", "verify_order",
-          "check_every", "done_check", "value_goal", "threshold", "grasp"}
+          "check_every", "done_check", "value_goal", "threshold", "grasp", "grip"}
 
 
 def _show(value) -> str:

@@ -12,6 +12,7 @@ from typing import ClassVar
 
 from seal.errors import InvalidInput
 from seal.options import RATE, Options, option
+from seal.sim.goals import GRASP_CHECKS  # re-exported: the oracle's pick check is one of these
 
 
 def _threshold(text: str) -> float:
@@ -35,7 +36,6 @@ class VerifierOptions(Options):
                                         "OPENAI_BASE_URL)", hash=False)
 
 
-GRASP_CHECKS = ("fingers", "pads")  # the oracle's pick check: Held (each finger, pad or body) / Grasped (both pads)
 
 
 @dataclass(frozen=True)

@@ -23,7 +23,7 @@ import numpy as np
 from seal.policies.expert.articulated import AWAY
 from seal.policies.expert.motion import (DOWN, TILT_GAIN, act, flat, hand_frame, horizontal_frame, joint_of, open_sign,
                                          openness, path_top, rotvec, unit)
-from seal.policies.expert.skills import CLOSE, HAND_HALF, OPEN, OPEN_WIDTH, Step, is_tall
+from seal.policies.expert.skills import CLOSE, HAND_HALF, OPEN, OPEN_WIDTH, Step, in_hand, is_tall
 from seal.sim.scene import Body, SceneState
 
 LEVEL_TOL = 0.15  # radians of pointing error still counted as level / as pointing down
@@ -69,7 +69,7 @@ def lay_inside(s: SceneState, obj: str, target: str) -> Step:
     # about +1.8 rad (measured) with the finger axis along UP x d, into its stop from where
     # the hand hangs after a grasp; along d x UP it ends near mid-range.
     finger = np.cross(d, [0.0, 0.0, 1.0])
-    if not s.facts.get(f"Grasped({obj})", False):
+    if not in_hand(s, obj):
         return _let_go_and_rise(s, body, finger)
     holder = _holder_top(s, target)
     # The bottle lies along the fingers' pointing direction, hanging or level: its middle is

@@ -18,7 +18,7 @@ from seal.policies.base import ACTION_HORIZON, PREDICT_HORIZON, ActionChunk, Rea
 from seal.policies.expert import lay, shelf, shelf_slide, skills, stow, upright
 from seal.policies.expert.plan import SubPlan, decompose
 from seal.sim.control import METRES_PER_ACTION, RADIANS_PER_ACTION
-from seal.sim.goals import GoalAtom
+from seal.sim.goals import GRASP_CHECKS, GoalAtom, hold_atom
 from seal.sim.lexicon import category
 from seal.sim.observation import Observation
 from seal.sim.scene import SceneState
@@ -73,8 +73,13 @@ class ScriptedExpert:
     knobs: FailureKnobs = field(default_factory=FailureKnobs)
     seed: int = 0
     task: str = ""
+    # How it tells that an object is in its hand (seal.sim.goals.GRASP_CHECKS): "fingers" (Held) agrees
+    # with the oracle's pick check; "pads" (robosuite's Grasped) is the expert before 2026-12-05, which
+    # read a mug or moka pot carried on a finger's body as dropped (seal bench grasp) and let go.
+    grip: str = GRASP_CHECKS[0]
 
     def __post_init__(self) -> None:
+        hold_atom("x", self.grip)  # an unknown check fails here, naming the valid ones
         self._plans: list[SubPlan] | None = None
         self._current: SubPlan | None = None
         self._attempts: list[_Attempt] = []
@@ -82,16 +87,18 @@ class ScriptedExpert:
         self._regions: list[str] = []
 
     @classmethod
-    def for_world(cls, world, knobs: FailureKnobs | None = None, seed: int = 0) -> "ScriptedExpert":
+    def for_world(cls, world, knobs: FailureKnobs | None = None, seed: int = 0,
+                  grip: str = GRASP_CHECKS[0]) -> "ScriptedExpert":
         return cls(goal_atoms=list(world.goal_atoms), instruction=world.instruction,
                    initially_open=world.task.initially_open(), knobs=knobs or FailureKnobs(), seed=seed,
-                   task=world.task.key)
+                   task=world.task.key, grip=grip)
 
     @classmethod
-    def for_task(cls, task, knobs: FailureKnobs | None = None, seed: int = 0) -> "ScriptedExpert":
+    def for_task(cls, task, knobs: FailureKnobs | None = None, seed: int = 0,
+                 grip: str = GRASP_CHECKS[0]) -> "ScriptedExpert":
         """The expert for a `TaskSpec` (no world needed: it plans from the goal atoms)."""
         return cls(goal_atoms=task.goal_atoms(), instruction=task.instruction, initially_open=task.initially_open(),
-                   knobs=knobs or FailureKnobs(), seed=seed, task=task.key)
+                   knobs=knobs or FailureKnobs(), seed=seed, task=task.key, grip=grip)
 
     # ---- ReasoningPolicy ------------------------------------------------------------------
     thinks: ClassVar[bool] = True  # it emits <think> when its sub-goal holds
@@ -100,11 +107,12 @@ class ScriptedExpert:
         """Nothing to release (the protocol's close is for policies behind a socket)."""
 
     def privileged_atoms(self) -> list[str]:
-        """Facts this policy reads from the scene: every sub-goal, and grasps of all movers."""
+        """Facts this policy reads from the scene: every sub-goal, and whether each mover is in the hand
+        (by its pick check: `skills.in_hand` reads whichever of the two the scene carries)."""
         atoms = {str(a) for a in self.goal_atoms}
         for a in self.goal_atoms:
             if a.predicate in ("in", "on"):
-                atoms.add(f"Grasped({a.subject})")
+                atoms.add(hold_atom(a.subject, self.grip))
         return sorted(atoms)
 
     def reset(self, instruction: str | None = None, seed: int | None = None) -> None:
@@ -122,7 +130,7 @@ class ScriptedExpert:
         return self._plans
 
     def reason(self, obs: Observation) -> Reasoning:
-        scene = _scene(obs)
+        scene = _scene(obs, self.grip)
         plans = self.plans(scene)
         # Places a confused policy might put things instead (not the objects' start regions).
         self._regions = sorted(n for n in scene.sites if n.endswith("_region") and not n.endswith("init_region"))
@@ -146,7 +154,7 @@ class ScriptedExpert:
             raise InvalidInput(f"act() got {len(obs_batch)} observations for {len(rows)} rows")
         if not self._attempts or max(rows) >= len(self._attempts):
             self.begin(max(rows) + 1)
-        return [self._act_row(_scene(o), self._attempts[r]) for o, r in zip(obs_batch, rows)]
+        return [self._act_row(_scene(o, self.grip), self._attempts[r]) for o, r in zip(obs_batch, rows)]
 
     # ---- internals ----------------------------------------------------------------------------
     def _draw(self, rng: np.random.Generator) -> _Attempt:
@@ -241,12 +249,13 @@ class ScriptedExpert:
 def progress(plans: list[SubPlan], scene: SceneState) -> list[bool]:
     """Which sub-plans are achieved in this state.
 
-    A pick counts as done while its object is held, or once the place that follows it holds.
+    A pick counts as done while its object is in the hand (`skills.in_hand`), or once the place that
+    follows it holds.
     """
     facts = scene.facts
     done = []
     for i, p in enumerate(plans):
-        holds = facts.get(str(p.goal), False)
+        holds = skills.in_hand(scene, p.obj) if p.skill == "pick" else facts.get(str(p.goal), False)
         if p.skill == "pick" and not holds and i + 1 < len(plans) and plans[i + 1].skill == "place":
             holds = facts.get(str(plans[i + 1].goal), False)
         done.append(bool(holds))
@@ -255,10 +264,15 @@ def progress(plans: list[SubPlan], scene: SceneState) -> list[bool]:
     return done
 
 
-def _scene(obs: Observation) -> SceneState:
+def _scene(obs: Observation, grip: str) -> SceneState:
+    """The privileged scene as this expert reads it: only its own in-hand fact (`skills.in_hand` takes
+    ``Held`` whenever present, so a pad-check expert must not see one)."""
     if obs.scene is None:
         raise InvalidInput("the scripted expert needs privileged observations: "
                            "observe(privileged_atoms=policy.privileged_atoms())")
+    other = "Grasped(" if grip == GRASP_CHECKS[0] else "Held("
+    if any(k.startswith(other) for k in obs.scene.facts):
+        return replace(obs.scene, facts={k: v for k, v in obs.scene.facts.items() if not k.startswith(other)})
     return obs.scene
 
 
@@ -275,4 +289,4 @@ __all__ = ["ScriptedExpert", "FailureKnobs", "progress", "category", "ACTION_HOR
 
 def scripted_policy(spec, task, *, seed: int = 0) -> ScriptedExpert:
     """`seal.policies.make_policy`'s ``scripted`` entry: the expert with the spec's failure knobs."""
-    return ScriptedExpert.for_task(task, FailureKnobs.named(spec.knobs), seed=seed)
+    return ScriptedExpert.for_task(task, FailureKnobs.named(spec.knobs), seed=seed, grip=spec.grip)

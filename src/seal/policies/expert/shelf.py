@@ -22,7 +22,7 @@ import numpy as np
 
 from seal.policies.expert.articulated import UPRIGHT_TOL
 from seal.policies.expert.motion import act, act_pose, hand_tilt, holder_of, misalign, pose_error
-from seal.policies.expert.skills import CLOSE, OPEN, OPEN_WIDTH, Step, hold
+from seal.policies.expert.skills import CLOSE, OPEN, OPEN_WIDTH, Step, hold, in_hand
 from seal.sim.scene import Box, SceneState
 
 DOWN = np.array([0.0, 0.0, -1.0])
@@ -137,7 +137,7 @@ def place_under_roof(s: SceneState, obj: str, target: str, knobs) -> Step:
     body = s.bodies[obj]
     finger = lv.across
     point = lv.inward * np.cos(DIP) + DOWN * np.sin(DIP)
-    if not s.facts.get(f"Grasped({obj})", False):
+    if not in_hand(s, obj):
         return _retreat(s, lv)
     p = s.eef_pos
     # How far the object reaches ahead of the hand once turned: up to its whole height.

@@ -32,6 +32,7 @@ from seal.policies.expert.skills import (
     Step,
     carry,
     hold,
+    in_hand,
     let_go_and_rise,
     move,
 )
@@ -107,7 +108,7 @@ def _upright(s: SceneState, body: Body, action: np.ndarray) -> Step:
 def slide_in(s: SceneState, obj: str, target: str, knobs: Knobs) -> Step:
     lv = level(s, obj, target)
     body = s.bodies[obj]
-    if not s.facts.get(f"Grasped({obj})", False):
+    if not in_hand(s, obj):
         # Let go: open, then straight up (the hand is in front of the shelf) and done.
         return let_go_and_rise(s, body)
     p = body.pos

@@ -82,6 +82,14 @@ class Step:
     done: bool = False
 
 
+def in_hand(s: SceneState, obj: str) -> bool:
+    """Whether ``obj`` is in the hand, by the pick check the expert asked the scene for (its
+    ``privileged_atoms``): ``Held`` (each finger on it, pad or body; the default) or robosuite's
+    ``Grasped`` (both pads; ``grip="pads"``, the expert of every recording before 2026-12-05)."""
+    held = s.facts.get(f"Held({obj})")
+    return bool(s.facts.get(f"Grasped({obj})", False) if held is None else held)
+
+
 def move(eef: np.ndarray, goal: np.ndarray, gripper: float, yaw_err: float = 0.0) -> np.ndarray:
     delta = np.clip(POS_GAIN * (goal - eef), -1.0, 1.0)
     return np.array([*delta, 0.0, 0.0, np.clip(YAW_GAIN * yaw_err, -1, 1), gripper])
@@ -324,7 +332,7 @@ def _rim_candidates(s: SceneState, name: str, body: Body) -> list[tuple[np.ndarr
 
 def pick(s: SceneState, name: str, knobs: Knobs, by_handle: bool = False) -> Step:
     body = s.bodies[name]
-    if s.facts.get(f"Grasped({name})", False):
+    if in_hand(s, name):
         if body.lo[2] < s.table_z + 0.04:
             # Held under an overhang (grasped after `_slide_under`): back out from under it
             # first, just off the table, then lift.
@@ -563,7 +571,7 @@ def _slot_yaw(s: SceneState, obj: str, target: str) -> float:
 
 def place(s: SceneState, obj: str, target: str, knobs: Knobs, slot: tuple[int, int] | None = None) -> Step:
     body = s.bodies[obj]
-    grasped = s.facts.get(f"Grasped({obj})", False)
+    grasped = in_hand(s, obj)
     xy, bottom = place_point(s, obj, target)
     slot = slot if slot is not None and slot[1] > 1 and target in s.sites else None
     if slot is not None:

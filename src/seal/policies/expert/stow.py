@@ -20,7 +20,7 @@ import numpy as np
 from seal.policies.expert.articulated import Opening, opening
 from seal.policies.expert.motion import path_top, yaw_error
 from seal.policies.expert.skills import (CLOSE, HAND_HALF, OPEN, YAW_TOL, Z_TOL, Knobs,
-                                         Step, carry, hold, let_go_and_rise, move)
+                                         Step, carry, hold, in_hand, let_go_and_rise, move)
 from seal.sim.scene import SceneState
 
 ENTRY_CLEARANCE = 0.03  # the object's bottom this far above the region's floor while going in
@@ -47,7 +47,7 @@ def stowing(s: SceneState, obj: str, target: str) -> Opening | None:
 def place_inside(s: SceneState, obj: str, target: str, knobs: Knobs) -> Step:
     o = stowing(s, obj, target)
     body = s.bodies[obj]
-    if not s.facts.get(f"Grasped({obj})", False):
+    if not in_hand(s, obj):
         # Let go: open, then straight up (the hand is in front of the doorway) and done.
         return let_go_and_rise(s, body)
     site = s.sites[target]

@@ -23,7 +23,7 @@ import numpy as np
 
 from seal.policies.expert.motion import finger_yaw, holder_of, path_top, wrap, yaw_error
 from seal.policies.expert.skills import (CLOSE, HAND_ABOVE, OPEN, YAW_TOL, Z_TOL, Knobs, Step, carry, hold,
-                                         let_go_and_rise, move)
+                                         in_hand, let_go_and_rise, move)
 from seal.sim.scene import Body, SceneState
 
 SLAB_THIN = 0.4  # thickness / width below this: a slab (a book), not a box
@@ -88,7 +88,7 @@ def _target(s: SceneState, body: Body, half: np.ndarray) -> tuple[float, np.ndar
 
 def place_standing(s: SceneState, obj: str, target: str, knobs: Knobs) -> Step:
     body = s.bodies[obj]
-    if not s.facts.get(f"Grasped({obj})", False):
+    if not in_hand(s, obj):
         return let_go_and_rise(s, body)
     site = s.sites[target]
     half = np.abs(site.xmat) @ site.size
