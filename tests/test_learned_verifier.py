@@ -257,7 +257,8 @@ def test_without_a_shipped_checkpoint_plain_learned_says_how_to_make_one(tmp_pat
         make_verifier("learned")
 
 
-@pytest.mark.parametrize("name", ["learned", "learned:expert", "learned:vla_rounds", "learned:dagger_rounds"])
+@pytest.mark.parametrize("name", ["learned", "learned:expert", "learned:vla_rounds", "learned:dagger_rounds",
+                                  "learned:pad_labels"])
 def test_the_shipped_checkpoints_match_their_manifests_and_judge(data, name):
     import hashlib
 
@@ -279,11 +280,15 @@ def test_the_shipped_checkpoints_match_their_manifests_and_judge(data, name):
     elif name == "learned:dagger_rounds":  # shipped until 2026-12-05: the generalization tables' verifier
         assert CHECKPOINT.digest(directory) == "c0646b399509"
         assert manifest["case_policies"]["init_from"]["digest"] == "808648b1ea87"
+    elif name == "learned:pad_labels":  # shipped on 2026-12-05 until its cases were labelled with Held
+        assert CHECKPOINT.digest(directory) == "91510e95b336"
+        assert manifest["case_policies"]["init_from"]["digest"] == "c0646b399509"
     else:
         assert directory == DEFAULT_CHECKPOINT
-        assert manifest["case_policies"]["init_from"]["digest"] == "c0646b399509"
+        assert manifest["case_policies"]["init_from"]["digest"] == "91510e95b336"
         # the cases of the VLA it steers (round 2), and task-level cases for the done check
         assert {s["policy_ckpt_digest"] for s in manifest["case_policies"]["sources"]} >= {"563400068f48"}
+        assert "Held" in manifest["shipped"]["labels"]
         assert manifest["shipped"]["held_out"]["task_level"]["n"] >= 100
         # its held-out figures on the documented protocol travel with it
         assert manifest["shipped"]["held_out"]["subplan_protocol"]["n"] >= 300

@@ -81,6 +81,9 @@ def test_the_earlier_shipped_verifier_keeps_a_name_of_its_own():
     third = MethodSpec(policy="vla", verifier="learned:dagger_rounds").canonical()
     assert len({current["model"], earlier["model"], second["model"], third["model"]}) == 4
     assert display_name(third) == "reasoning VLA + SEAL (learned verifier from the DAgger rounds)"
+    fourth = MethodSpec(policy="vla", verifier="learned:pad_labels").canonical()
+    assert len({current["model"], earlier["model"], second["model"], third["model"], fourth["model"]}) == 5
+    assert display_name(fourth) == "reasoning VLA + SEAL (learned verifier from pad-check labels)"
 
 
 def test_a_stricter_verifier_threshold_is_a_method_of_its_own_and_says_so():

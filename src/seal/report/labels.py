@@ -31,9 +31,10 @@ STEERING_NAMES = {"seal": "SEAL", "value": "V-GPS", "random": "random pick"}
 VERIFIER_NAMES = {"oracle": "oracle", "noisy": "noisy oracle", "learned": "learned verifier",
                   "openai": "OpenAI VLM", "gemini": "Gemini VLM"}
 # `learned:expert`: trained on the scripted expert's rounds; `learned:vla_rounds`: fine-tuned on the first VLA's;
-# `learned:dagger_rounds`: that one on the DAgger rounds 1-3 too
+# `learned:dagger_rounds`: that one on the DAgger rounds 1-3 too; `learned:pad_labels`: on the round-2 VLA's SEAL
+# rounds with picks labelled by the pad check
 EARLIER_VERIFIER_NAMES = {"expert": "expert rounds", "vla_rounds": "the first VLA's rounds",
-                          "dagger_rounds": "the DAgger rounds"}
+                          "dagger_rounds": "the DAgger rounds", "pad_labels": "pad-check labels"}
 # V-GPS Q-functions shipped beside the default (`seal.value.DEFAULT_SHIPPED`, which goes unnamed)
 VALUE_NAMES = {"l10_demos": "Q from demonstrations only", "l10_twin_rollouts": "Q with the twin's rollouts"}
 # Settings a name never shows: identities already in the policy's name, digests, or what the

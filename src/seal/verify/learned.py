@@ -41,9 +41,10 @@ DEFAULT_CHECKPOINT = Path(__file__).resolve().parent / "checkpoints" / "learned"
 # Earlier shipped checkpoints, kept so the tables made with them stay reproducible: `learned:NAME`.
 # expert: the first one (2026-12-02), trained on the scripted expert's rounds and demonstrations;
 # vla_rounds: it fine-tuned on the first reasoning VLA's own rounds (shipped 2026-12-04 morning);
-# dagger_rounds: that one with DAgger rounds 2-3 and task-level cases added (shipped 2026-12-04 to 12-05); the
-# shipped one is it fine-tuned, failures weighted, on the round-2 VLA's SEAL rounds (docs/verifier.md).
-SHIPPED = {name: DEFAULT_CHECKPOINT.parent / name for name in ("expert", "vla_rounds", "dagger_rounds")}
+# dagger_rounds: that one with DAgger rounds 2-3 and task-level cases added (shipped 2026-12-04 to 12-05);
+# pad_labels: it fine-tuned, failures weighted, on the round-2 VLA's SEAL rounds, picks labelled by the pad check
+# (shipped 2026-12-05); the shipped one is that recipe again on the same rounds labelled by Held (docs/verifier.md).
+SHIPPED = {name: DEFAULT_CHECKPOINT.parent / name for name in ("expert", "vla_rounds", "dagger_rounds", "pad_labels")}
 KIND = "seal-learned-verifier"
 WEIGHTS = "model.safetensors"
 CONFIG = "config.json"
