@@ -30,6 +30,7 @@ PREDICATES = {
 ARTICULATION = ("open", "close", "turnon", "turnoff")  # states of a hinge or slide, not of a free object
 ARITY = {"in": 2, "on": 2, "open": 1, "close": 1, "turnon": 1, "turnoff": 1, "grasped": 1, "held": 1}
 _DISPLAY_TO_KEY = {v.lower(): k for k, v in PREDICATES.items()}
+_ATOM_RE = re.compile(r"^\s*([A-Za-z_]+)\s*\(\s*([^()]*?)\s*\)\s*$")
 # The two ways to call an object picked up, by name: "fingers" (Held) and "pads" (Grasped, what every
 # result before 2026-12-05 ran with). The oracle's pick check and the scripted expert's grip both choose one.
 GRASP_CHECKS = ("fingers", "pads")
@@ -42,7 +43,6 @@ def hold_atom(obj: str, grasp: str = GRASP_CHECKS[0]) -> str:
     if grasp not in _GRASP_PREDICATE:
         raise InvalidInput(f"unknown grasp check {grasp!r}; valid: {', '.join(GRASP_CHECKS)}")
     return f"{_GRASP_PREDICATE[grasp]}({obj})"
-_ATOM_RE = re.compile(r"^\s*([A-Za-z_]+)\s*\(\s*([^()]*?)\s*\)\s*$")
 
 
 @dataclass(frozen=True)

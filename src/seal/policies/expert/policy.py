@@ -79,7 +79,8 @@ class ScriptedExpert:
     grip: str = GRASP_CHECKS[0]
 
     def __post_init__(self) -> None:
-        hold_atom("x", self.grip)  # an unknown check fails here, naming the valid ones
+        if self.grip not in GRASP_CHECKS:
+            raise InvalidInput(f"unknown grip {self.grip!r}; valid: {', '.join(GRASP_CHECKS)}")
         self._plans: list[SubPlan] | None = None
         self._current: SubPlan | None = None
         self._attempts: list[_Attempt] = []
@@ -265,14 +266,13 @@ def progress(plans: list[SubPlan], scene: SceneState) -> list[bool]:
 
 
 def _scene(obs: Observation, grip: str) -> SceneState:
-    """The privileged scene as this expert reads it: only its own in-hand fact (`skills.in_hand` takes
-    ``Held`` whenever present, so a pad-check expert must not see one)."""
+    """The privileged scene as this expert reads it. `skills.in_hand` takes ``Held`` whenever the scene
+    carries it, so the pad-check expert gets the scene without it."""
     if obs.scene is None:
         raise InvalidInput("the scripted expert needs privileged observations: "
                            "observe(privileged_atoms=policy.privileged_atoms())")
-    other = "Grasped(" if grip == GRASP_CHECKS[0] else "Held("
-    if any(k.startswith(other) for k in obs.scene.facts):
-        return replace(obs.scene, facts={k: v for k, v in obs.scene.facts.items() if not k.startswith(other)})
+    if grip == "pads" and any(k.startswith("Held(") for k in obs.scene.facts):
+        return replace(obs.scene, facts={k: v for k, v in obs.scene.facts.items() if not k.startswith("Held(")})
     return obs.scene
 
 
