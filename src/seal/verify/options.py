@@ -36,8 +36,6 @@ class VerifierOptions(Options):
                                         "OPENAI_BASE_URL)", hash=False)
 
 
-
-
 @dataclass(frozen=True)
 class OracleOptions(VerifierOptions):
     """The oracle (and the noisy oracle built on it): which contact check a pick sub-plan gets."""

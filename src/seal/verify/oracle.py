@@ -27,9 +27,8 @@ from dataclasses import dataclass
 
 from seal.errors import InvalidInput
 from seal.sim.lexicon import NAMES, category
-from seal.sim.goals import GoalAtom
+from seal.sim.goals import GRASP_CHECKS, GoalAtom
 from seal.verify.base import Verdict, VerifyRequest
-from seal.verify.options import GRASP_CHECKS
 
 # Words people (and VLAs) use beyond the expert's own lexicon, per object category.
 SYNONYMS: dict[str, tuple[str, ...]] = {
