@@ -121,6 +121,8 @@ def test_settings_that_differ_are_named_briefly():
     assert display_name(noisy) == "clean scripted expert + SEAL (noisy oracle, false passes 10%)"
     assert display_name(MethodSpec(method="base", policy="vla:twin", render="stock").canonical()) == \
         "twin (pi0, stock render)"
+    assert display_name(MethodSpec(method="base", policy="vla", noise_scale=0.0).canonical()) == \
+        "reasoning VLA (flow noise x0)"
     # A VLA the report does not know is named by its weights, and says its render (its usual one is unknown).
     other = {**MethodSpec(method="base", policy="vla").canonical(), "policy_ckpt": "a1b2c3d4e5f6"}
     assert display_name(other, vlas={}) == "VLA checkpoint a1b2c3 (fast render)"

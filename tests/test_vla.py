@@ -135,6 +135,35 @@ def test_kv_cache_paths_equal_full_passes(tok):
         assert torch.allclose(seq.hidden, full, atol=1e-5)
 
 
+def test_noise_scale_zero_gives_one_chunk_per_observation_and_one_keeps_the_draws(tok):
+    """``noise_scale=0``: every row starts the flow from zero noise, so K rows of one observation get one
+    chunk; 1 (the default) is the policy as before, row for row; the policy option refuses a negative scale."""
+    torch.manual_seed(0)
+    model = VLAModel(tiny(tok)).eval()
+    reasoning = Reasoning(PLANS, PLANS[:1], PLANS[1])
+
+    def chunks(**kw):
+        policy = VLAPolicy(model, tok, instruction=INSTRUCTION, seed=3, **kw)
+        policy.reset(INSTRUCTION, seed=0)
+        policy.begin(3)
+        return np.stack([c.actions for c in policy.act([obs_at(32)] * 3, reasoning)])
+
+    zero, default, one = chunks(noise_scale=0.0), chunks(), chunks(noise_scale=1.0)
+    np.testing.assert_array_equal(zero[0], zero[1])
+    np.testing.assert_array_equal(zero[0], zero[2])
+    np.testing.assert_array_equal(default, one)
+    assert np.abs(default[0] - default[1]).max() > 1e-4  # the draws differ at scale 1: the checks above can fail
+    half = chunks(noise_scale=0.5)
+    assert np.abs(half[0] - half[1]).max() < np.abs(default[0] - default[1]).max()
+    with pytest.raises(InvalidInput, match="noise_scale"):
+        VLAPolicy(model, tok, noise_scale=-0.1)
+    from seal.policies.options import VLAOptions
+
+    assert VLAOptions().hashed() == {} and VLAOptions(noise_scale=0.0).hashed() == {"noise_scale": 0.0}
+    with pytest.raises(InvalidInput, match="noise_scale"):
+        VLAOptions(noise_scale=float("nan"))
+
+
 def test_twin_has_no_reasoning_parts(tok):
     cfg = tiny(tok, reasoning=False)
     model = VLAModel(cfg)

@@ -92,6 +92,7 @@ class DaggerJob:
     teacher_check: bool = False  # also let the expert finish alone from one boundary (`teacher_recovers`)
     verifier_cases: bool = False  # also take verification cases from the VLA's states (`VerifierCaseTaker`)
     closed_loop: bool = True  # chunk labels: the expert's executed actions from each state (`teacher_label`)
+    noise_scale: float = 1.0  # the VLA's flow noise scale (`VLAPolicy.noise_scale`; held-out checks may set it)
 
 
 @dataclass
@@ -209,6 +210,7 @@ def _world_and_policy(job: DaggerJob):
     if _CACHE.get("ckpt") != job.ckpt:
         _CACHE["policy"] = VLAPolicy.load(job.ckpt)
         _CACHE["ckpt"] = job.ckpt
+    _CACHE["policy"].noise_scale = float(job.noise_scale)  # per job: the cached policy serves every job
     return _CACHE["world"], _CACHE["policy"]
 
 

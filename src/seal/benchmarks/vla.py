@@ -254,14 +254,20 @@ def run(args) -> dict:
                                           f"{render!r} (pass --render to choose)")
             print(f"seal: warning: {out['rollout_render_note']}", file=sys.stderr, flush=True)
         out |= rollouts(str(path), tasks=args.tasks, n=int(args.rollouts), render=render,
-                        suite=getattr(args, "suite", None) or "libero_10", max_steps=getattr(args, "max_steps", None))
+                        suite=getattr(args, "suite", None) or "libero_10", max_steps=getattr(args, "max_steps", None),
+                        noise_scale=_noise_scale(args))
         if getattr(args, "round_log", None):
             out["round_plot"] = str(log_round(Path(args.round_log), args.round_name or str(path), out))
     return out
 
 
+def _noise_scale(args) -> float:
+    value = getattr(args, "noise_scale", None)  # 0 is a valid scale: no `or` default here
+    return 1.0 if value is None else float(value)
+
+
 def rollouts(ckpt: str, *, tasks: str, n: int, render: str, suite: str = "libero_10", max_steps: int | None = None,
-             progress=None) -> dict:
+             progress=None, noise_scale: float = 1.0) -> dict:
     """The policy alone, closed loop, on fresh sampled starts (see the module docstring)."""
     from seal.episode import run_policy_episode
     from seal.policies.vla.policy import VLAPolicy
@@ -276,8 +282,9 @@ def rollouts(ckpt: str, *, tasks: str, n: int, render: str, suite: str = "libero
     from seal.policies.vla.locate import resolve_checkpoint
 
     if read_config(resolve_checkpoint(ckpt)).reasoning:  # labelled by the expert: on-policy reasoning figures too
-        return _labelled_rollouts(ckpt, ids, n=n, render=render, suite=suite, max_steps=max_steps, progress=progress)
-    policy = VLAPolicy.load(ckpt)
+        return _labelled_rollouts(ckpt, ids, n=n, render=render, suite=suite, max_steps=max_steps, progress=progress,
+                                  noise_scale=noise_scale)
+    policy = VLAPolicy.load(ckpt, noise_scale=noise_scale)
     rows = []
     for task_id in ids:
         world = LiberoWorld((suite, task_id), render_mode=render)
@@ -296,11 +303,11 @@ def rollouts(ckpt: str, *, tasks: str, n: int, render: str, suite: str = "libero
             world.close()
     return {"rollout_success": round(float(np.mean([r["success"] for r in rows])), 3),
             "rollout_subgoals": round(float(np.mean([r["subgoals"] for r in rows])), 3),
-            "rollout_suite": suite, "rollout_render": render, "rollouts": rows}
+            "rollout_suite": suite, "rollout_render": render, "noise_scale": noise_scale, "rollouts": rows}
 
 
 def _labelled_rollouts(ckpt: str, ids: list[int], *, n: int, render: str, suite: str, max_steps: int | None,
-                       progress) -> dict:
+                       progress, noise_scale: float = 1.0) -> dict:
     """The reasoning VLA alone on the same fresh starts, with the scripted expert reading every state it
     reaches (`seal.dagger`, beta 0: the expert never acts): success, sub-goals, and how its reasoning held
     up on its own states (sub-plan accuracy against the expert, alignment of the sub-plans it acted on)."""
@@ -319,7 +326,8 @@ def _labelled_rollouts(ckpt: str, ids: list[int], *, n: int, render: str, suite:
             for e in range(n):
                 job = DaggerJob(suite, task_id, ROLLOUT_EPISODE0 + e, 0, str(where), 0.0, render, size, max_steps,
                                 start_seed=rollout_start_seed(task, e),
-                                closed_loop=False)  # only the labels' text is scored here
+                                closed_loop=False,  # only the labels' text is scored here
+                                noise_scale=noise_scale)
                 _, a, _, _ = run_dagger_episode(job)
                 rows.append({"task": key, "start_seed": a["start_seed"], "success": a["success"], "steps": a["steps"],
                              "subgoals": a["subgoals"],
@@ -340,7 +348,7 @@ def _labelled_rollouts(ckpt: str, ids: list[int], *, n: int, render: str, suite:
             "onpolicy_alignment": round(sum((r["alignment"] or 0) * r["committed"] for r in rows) / max(committed, 1), 4),
             "vla_done_early": sum(r["ended"] == "vla_done" for r in rows),
             "teacher_unanswered": round(sum(r["invalid_labels"] for r in rows) / max(frames, 1), 4),
-            "rollout_suite": suite, "rollout_render": render, "rollouts": rows}
+            "rollout_suite": suite, "rollout_render": render, "noise_scale": noise_scale, "rollouts": rows}
 
 
 REFERENCE = {"suite": "libero_10", "task": 5, "episode": 999, "steps": 40}  # a start no recording or rollout uses
@@ -427,7 +435,7 @@ def log_round(log: Path, name: str, out: dict) -> Path:
 
     row = {"round": name, "ckpt": out.get("ckpt"), "suite": out.get("rollout_suite"), "episodes": len(out["rollouts"]),
            **{k: out.get(k) for k in ("rollout_success", "rollout_subgoals", "onpolicy_subplan_accuracy",
-                                      "onpolicy_alignment", "vla_done_early", "teacher_unanswered")}}
+                                      "onpolicy_alignment", "vla_done_early", "teacher_unanswered", "noise_scale")}}
     rows = [json.loads(line) for line in log.read_text().splitlines() if line.strip()] if log.is_file() else []
     rows = [r for r in rows if r["round"] != name] + [row]
     log.parent.mkdir(parents=True, exist_ok=True)

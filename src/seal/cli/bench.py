@@ -50,6 +50,9 @@ def add(sub) -> None:
     bench.add_argument("--redraw", action="store_true",
                        help="vla --round-log: redraw ROUNDS.png from the log and stop (nothing is measured)")
     bench.add_argument("--round-name", default=None, help="vla --round-log: the round's label (default: the checkpoint)")
+    bench.add_argument("--noise-scale", type=NONNEGATIVE, default=1.0,
+                       help="vla --rollouts: scale of the flow's starting noise (1: as trained; 0: the chunk from zero "
+                            "noise), the policy option noise_scale")
     bench.add_argument("--rollouts", type=INDEX, default=0,
                        help="vla with --ckpt: closed-loop episodes per task on fresh sampled starts (default 0: none); "
                             "grasp: episodes on --task (default 4)")

@@ -7,11 +7,12 @@ checks and hashes these settings in any process. What a factory reads (``options
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import ClassVar
 
 from seal.errors import InvalidInput
-from seal.options import PORT, POSITIVE, Options, option
+from seal.options import PORT, POSITIVE, Options, option, real_in
 from seal.sim.goals import GRASP_CHECKS
 
 KNOBS = ("clean", "misaligned")
@@ -67,6 +68,14 @@ class VLAOptions(PlannerOptions):
     checkpoint: ClassVar[str] = "policy_ckpt"
     policy_ckpt: str = option("", "vla: checkpoint directory, or shipped 'reason' (default) / 'twin'; also written "
                                   "policy=vla:PATH", later=True, strict=True, flag=False)
+    noise_scale: float = option(1.0, "vla: scale of the flow's starting noise (1: as trained; 0: every chunk from zero "
+                                     "noise, one deterministic chunk per observation)", type=real_in(0.0), later=True,
+                                strict=True)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not (self.noise_scale >= 0.0 and math.isfinite(self.noise_scale)):
+            raise InvalidInput(f"noise_scale must be a finite number >= 0, got {self.noise_scale}")
 
     def weights(self):
         from seal.policies.vla.locate import CHECKPOINT, resolve_checkpoint

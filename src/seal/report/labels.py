@@ -233,13 +233,15 @@ def _setting_notes(config: dict, vlas: dict[str, KnownVLA]) -> list[str]:
         notes.append(f"{config['planner']} planner" + (f" {model}" if model else ""))
     if config.get("prompt", DEFAULTS["prompt"]) != DEFAULTS["prompt"]:
         notes.append(f"{config['prompt'].replace('subplan', 'sub-plan')} prompt")
+    if float(config.get("noise_scale", 1.0)) != 1.0:
+        notes.append(f"flow noise x{float(config['noise_scale']):g}")
     return notes
 
 
 # Settings the functions above put into words (or deliberately leave out).
 _NAMED = {"knobs", "render", "mode", "mismatch", "subplan_budget", "planner", "planner_model", "annotations", "prompt",
           "k", "rounds", "verifier", "model", "false_positive", "false_negative", "pick", "verify_order",
-          "check_every", "done_check", "value_goal", "threshold", "grasp", "grip"}
+          "check_every", "done_check", "value_goal", "threshold", "grasp", "grip", "noise_scale"}
 
 
 def _show(value) -> str:

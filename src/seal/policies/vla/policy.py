@@ -49,7 +49,10 @@ from seal.sim.observation import Observation
 
 class VLAPolicy:
     def __init__(self, model: VLAModel, tokenizer: VLATokenizer, *, seed: int = 0, planner=None,
-                 instruction: str = "", source: str = "", manifest: dict | None = None, bf16: bool = False):
+                 instruction: str = "", source: str = "", manifest: dict | None = None, bf16: bool = False,
+                 noise_scale: float = 1.0):
+        if not (noise_scale >= 0.0 and np.isfinite(noise_scale)):
+            raise InvalidInput(f"noise_scale must be a finite number >= 0, got {noise_scale}")
         self.model = model.eval()
         self.tok = tokenizer
         self.cfg = model.cfg
@@ -63,6 +66,11 @@ class VLAPolicy:
         # bf16 autocast for `act` (the network as trained, the Euler sum in fp32): cheaper per extra
         # candidate on CPUs with bf16 units; off by default, fp32 is the reference
         self.bf16 = bf16
+        # the flow's starting noise is drawn from N(0, noise_scale^2): 1 is the distribution the model was
+        # trained to transport; below 1 pulls every draw toward the chunk reached from zero noise, which
+        # for a single sample (the policy alone) trades diversity for the most central chunk. SEAL's K
+        # candidates need the diversity: keep 1 there.
+        self.noise_scale = float(noise_scale)
         self.last_text = ""  # the last raw reasoning text the model wrote
         self.last_tokens = 0  # and its length in tokens
         self._instruction = instruction  # the prompt of observations that carry none
@@ -74,7 +82,7 @@ class VLAPolicy:
 
     @classmethod
     def load(cls, path: str | Path = "", *, seed: int = 0, device: str = "cpu", planner=None,
-             instruction: str = "", threads: int | None = 1) -> VLAPolicy:
+             instruction: str = "", threads: int | None = 1, noise_scale: float = 1.0) -> VLAPolicy:
         """``threads``: torch's intra-op threads (process-wide; None leaves them). One by default: on
         the 2-core machine shared with simulator workers, two threads cost many times more per chunk
         (`seal bench vla`: sample_ms_k1_2threads against sample_ms_k1, docs/performance.md)."""
@@ -83,7 +91,7 @@ class VLAPolicy:
         where = resolve_checkpoint(str(path))
         model, tok, manifest = load_checkpoint(where, device=device)
         return cls(model, tok, seed=seed, planner=planner, instruction=instruction, source=str(where),
-                   manifest=manifest)
+                   manifest=manifest, noise_scale=noise_scale)
 
     # -- protocol ---------------------------------------------------------------------------------
     def close(self) -> None:
@@ -136,6 +144,8 @@ class VLAPolicy:
         keys = [_obs_key(o) for o in obs_batch]
         unique = list(dict.fromkeys(keys))
         noise = torch.stack([torch.randn(PREDICT_HORIZON, ACTION_DIM, generator=self._gens[r]) for r in rows])
+        if self.noise_scale != 1.0:  # the draws themselves stay the same: a row's stream is not shifted
+            noise = noise * self.noise_scale
         with torch.autocast(self.model.device.type, dtype=torch.bfloat16, enabled=self.bf16):
             cond = self.condition([obs_batch[keys.index(k)] for k in unique], reasoning)
             index = [unique.index(k) for k in keys]
@@ -223,7 +233,8 @@ def vla_policy(spec, task, *, seed: int = 0) -> VLAPolicy:
 
         planner = make_planner(spec.planner, spec=task, annotations=spec.annotations, model=spec.planner_model,
                                base_url=spec.base_url)
-    policy = VLAPolicy.load(spec.policy_ckpt, seed=seed, planner=planner, instruction=task.instruction)
+    policy = VLAPolicy.load(spec.policy_ckpt, seed=seed, planner=planner, instruction=task.instruction,
+                            noise_scale=spec.noise_scale)
     if policy.cfg.reasoning and planner is not None:
         raise InvalidInput("a reasoning VLA writes its own sub-plans; --planner is for the non-reasoning twin")
     return policy
