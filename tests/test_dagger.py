@@ -227,6 +227,13 @@ def test_round_log_keeps_one_row_per_round_and_draws_them(tmp_path):
     assert main(["bench", "vla", "--round-log", str(log), "--redraw"]) == 0
     assert png.stat().st_size > 10_000
     assert main(["bench", "vla", "--round-log", str(tmp_path / "none.jsonl"), "--redraw"]) == 2
+    # some rounds, in the order asked, to another file; a round the log lacks is refused, naming the ones it has
+    from seal.benchmarks.vla import redraw_rounds
+
+    picked = redraw_rounds(str(log), ["twin", "0"], str(tmp_path / "two.png"))
+    assert picked["rounds"] == 2 and (tmp_path / "two.png").stat().st_size > 10_000
+    with pytest.raises(InvalidInput, match="'7' is not in .*'0'; '1'; 'twin'"):
+        redraw_rounds(str(log), ["7"])
 
 
 @pytest.mark.parametrize("runner", ["seal.demos:_run_parallel", "seal.dagger:collect_dagger"])

@@ -125,7 +125,7 @@ def _median_ms(fn, reps: int) -> float:
 
 def run(args) -> dict:
     if getattr(args, "redraw", False):
-        return redraw_rounds(args.round_log)
+        return redraw_rounds(args.round_log, getattr(args, "round", None), getattr(args, "plot", None))
     import torch
 
     from seal.policies.base import Reasoning
@@ -411,8 +411,9 @@ def check_reference(ckpt: str, *, record: bool = False) -> dict:
             "first_step_apart": int(apart[0]) if len(apart) else None}
 
 
-def redraw_rounds(log: str | None) -> dict:
-    """`seal bench vla --round-log LOG --redraw`: the per-round plot drawn again from the log alone."""
+def redraw_rounds(log: str | None, names: list[str] | None = None, out: str | None = None) -> dict:
+    """`seal bench vla --round-log LOG --redraw [--round NAME ...] [--plot PNG]`: the per-round plot drawn
+    again from the log alone; ``names`` picks rows (in that order), ``out`` writes elsewhere than LOG.png."""
     import json
 
     from seal.report.plots import rounds_plot
@@ -423,7 +424,15 @@ def redraw_rounds(log: str | None) -> dict:
     rows = [json.loads(line) for line in Path(log).read_text().splitlines() if line.strip()]
     if not rows:
         raise InvalidInput(f"{log} holds no rounds yet")
-    return {"round_log": str(log), "rounds": len(rows), "round_plot": str(rounds_plot(rows, Path(log).with_suffix(".png")))}
+    if names:
+        by_name = {r["round"]: r for r in rows}
+        unknown = [n for n in names if n not in by_name]
+        if unknown:
+            raise InvalidInput(f"--round {unknown[0]!r} is not in {log}; its rounds: "
+                               + "; ".join(repr(n) for n in by_name))
+        rows = [by_name[n] for n in names]
+    path = Path(out) if out else Path(log).with_suffix(".png")
+    return {"round_log": str(log), "rounds": len(rows), "round_plot": str(rounds_plot(rows, path))}
 
 
 def log_round(log: Path, name: str, out: dict) -> Path:

@@ -37,7 +37,8 @@ def add(sub) -> None:
     bench.add_argument("--image-size", type=COUNT, default=None, help="runtime: camera px for pixel policies (64); render: the size measured (64)")
     bench.add_argument("--render", default=None, choices=["stock", "fast"],
                        help="runtime: render model (default: fast for pixel policies)")
-    bench.add_argument("--plot", default=None, help="runtime: write the stacked breakdown against K to this PNG")
+    bench.add_argument("--plot", default=None, help="runtime: write the stacked breakdown against K to this PNG; "
+                                                   "vla --redraw: write the round plot here (default: beside the log)")
     bench.add_argument("--dart", type=NONNEGATIVE, default=0.0,
                        help="expert: perturb every executed chunk by a Gaussian offset of this std (as `seal demos "
                             "record --dart` does): how much perturbation the expert survives")
@@ -50,6 +51,8 @@ def add(sub) -> None:
     bench.add_argument("--redraw", action="store_true",
                        help="vla --round-log: redraw ROUNDS.png from the log and stop (nothing is measured)")
     bench.add_argument("--round-name", default=None, help="vla --round-log: the round's label (default: the checkpoint)")
+    bench.add_argument("--round", action="append", default=None, metavar="NAME",
+                       help="vla --redraw: plot only this logged round (repeat; the plot keeps this order)")
     bench.add_argument("--noise-scale", type=NONNEGATIVE, default=1.0,
                        help="vla --rollouts: scale of the flow's starting noise (1: as trained; 0: the chunk from zero "
                             "noise), the policy option noise_scale")

@@ -144,8 +144,10 @@ def runtime_breakdown_plot(rows: list[dict], path, *, title: str = "") -> Path:
 
 
 def rounds_plot(rows: list[dict], path, *, title: str = "On-policy rounds: the reasoning VLA on held-out fresh starts") -> Path:
-    """One line per held-out figure against the DAgger round (rows from `seal bench vla --round-log`):
-    closed-loop success with its Wilson 95% interval, on-policy sub-plan accuracy and alignment."""
+    """Each held-out figure per logged row (rows from `seal bench vla --round-log`: DAgger rounds and
+    variants beside them): closed-loop success with its Wilson 95% interval, on-policy sub-plan
+    accuracy, alignment and goal atoms. Markers only: the rows are separate checkpoints and settings,
+    not points of one curve."""
     from seal.report.stats import wilson
 
     fig = Figure(figsize=(7.5, 4.8), dpi=110)
@@ -156,16 +158,16 @@ def rounds_plot(rows: list[dict], path, *, title: str = "On-policy rounds: the r
     cis = [wilson(round(r["rollout_success"] * r["episodes"]), r["episodes"]) for r in rows]
     ax.errorbar(xs, success, yerr=[[s - 100 * lo for s, (lo, _) in zip(success, cis)],
                                    [100 * hi - s for s, (_, hi) in zip(success, cis)]],
-                marker="o", capsize=4, label="success alone (Wilson 95%)")
+                marker="o", linestyle="none", capsize=4, label="success alone (Wilson 95%)")
     for key, label, marker in (("onpolicy_subplan_accuracy", "on-policy sub-plan accuracy", "s"),
                                ("onpolicy_alignment", "alignment (committed sub-plans achieved)", "^"),
                                ("rollout_subgoals", "goal atoms holding at the end", "D")):
         # a figure a round does not have (the twin writes no sub-plans) is a gap, not a zero
         ax.plot(xs, [100 * r[key] if r.get(key) is not None else float("nan") for r in rows], marker=marker,
-                label=label)
+                linestyle="none", label=label)
     # round names carry the variant ("1 (no instruction dropout)"): wrapped so neighbours do not overlap
     ax.set_xticks(xs, [textwrap.fill(str(r["round"]), 14) for r in rows], fontsize=8)
-    ax.set_xlabel("round")
+    ax.set_xlabel("checkpoint or setting (round log)")
     ax.set_ylabel("%")
     ax.set_ylim(0, 100)
     ax.grid(alpha=0.3)
