@@ -132,7 +132,9 @@ def test_tiny_run_end_to_end_and_resume(tmp_path):
             commits = [e for e in _events(r) if e["event"] == "commit"]
             audited = [e["aligned"] for e in commits if e["aligned"] is not None]
             assert (r.subplans_audited, r.subplans_aligned) == (len(audited), sum(audited))
-            assert all(e["aligned"] for e in commits if (e["verdict"] or {}).get("success"))
+            # the oracle checks a pick with Held: its passes hold under the audit's Held answer, same check
+            assert all(e["aligned_held"] for e in commits if (e["verdict"] or {}).get("success"))
+            assert all((e["aligned"] is None) == (e["aligned_held"] is None) for e in commits)
     assert set(summary.alignment) == {"base", "seal[k=2]"}
     assert all(v is None or 0 <= v <= 1 for v in summary.alignment.values())
     again = run_eval(str(db), methods, ["libero_10"], [0, 1], 2, options=options)

@@ -32,11 +32,13 @@ def test_a_plan_is_read_against_the_goal():
 
 
 def _trace(path, commits):
-    """Commits in plan order: the first for the plan's first sub-plan (a pick), the second for its second (a place)."""
+    """Commits in plan order: the first for the plan's first sub-plan (a pick), the second for its second (a place).
+    A commit is (passed, aligned) as older traces hold it, or (passed, aligned, aligned_held)."""
     path.parent.mkdir(parents=True)
-    events = [e for i, (ok, aligned) in enumerate(commits)
+    events = [e for i, (ok, aligned, *held) in enumerate(commits)
               for e in ({"event": "subplan", "step": 0, "text": RIGHT[i]},
-                        {"event": "commit", "slot": 0, "verdict": {"success": ok}, "aligned": aligned})]
+                        {"event": "commit", "slot": 0, "verdict": {"success": ok}, "aligned": aligned,
+                         **({"aligned_held": held[0]} if held else {})})]
     path.write_text("".join(json.dumps(e) + "\n" for e in events) + '{"event": "commit", "verdict"')  # a cut-off line
 
 
@@ -96,3 +98,26 @@ def test_each_failure_gets_its_first_cause(tmp_path):
     kinds = {r["kind"]: (r["committed_passes"], r["held"]) for r in csv.DictReader(path.read_text().splitlines())}
     assert kinds == {"pick": ("4", "2"), "place": ("1", "0")}
     assert "| libero_10 | scripted expert + SEAL (oracle) | 2/4 = 0.500 [0.150, 0.850] | 0/1 = 0.000 [0.000, 0.793] |" in md
+
+
+def test_a_carried_pick_is_no_miss_where_the_trace_has_the_held_audit(tmp_path):
+    """A pick the pad check calls missed but ``Held`` calls picked (an object on a finger's body): the failure is
+    not the verifier's, and the pass counts as held; a trace without the Held answer falls back to the pad check."""
+    db = tmp_path / "r.db"
+    trials = [[(True, False, True), (False, False, False)],  # pads says missed, Held says picked: no candidate passed
+              [(True, False)]]  # an older trace: the pad check decides, the verifier passed a miss
+    with ResultStore(db) as store:
+        store.register_method(SEAL.config_hash, SEAL.label, SEAL.canonical())
+        for t, commits in enumerate(trials):
+            path = tmp_path / "runs" / f"t{t}" / "trace.jsonl"
+            _trace(path, commits)
+            store.add(TrialRow(method=SEAL.label, config_hash=SEAL.config_hash, suite="libero_10", task=0, trial=t,
+                               init_index=t, seed=t, success=False, steps=100, wall_s=1.0, subplans=RIGHT,
+                               ended_by="step_limit", fallbacks=1, trace_path=str(path)))
+    report = write_report(db, tmp_path / "out", episodes=False)
+    path = next(p for p in report.csv if p.name == "failure_causes.csv")
+    (row,) = list(csv.DictReader(path.read_text().splitlines()))
+    assert (row["verifier_passed_a_miss"], row["no_candidate_passed"]) == ("1", "1")
+    path = next(p for p in report.csv if p.name == "committed_passes.csv")
+    (row,) = list(csv.DictReader(path.read_text().splitlines()))
+    assert (row["committed_passes"], row["held"]) == ("2", "1")

@@ -10,7 +10,8 @@ failure propagates through the Hypothesize-Predict-Verify loop:
    and every goal atom must be among what its sub-plans achieve. Tasks whose own scripted plan the
    parser cannot ground to the goal are not judged (some LIBERO-90 scenes with two alike objects).
 2. ``verifier passed a miss``: a commit the verifier accepted whose sub-plan did not hold by
-   simulator truth (the commit's alignment audit, in the trace).
+   simulator truth (the commit's alignment audit, in the trace: a pick checked with ``Held`` where the
+   trace records it, with robosuite's pad check in traces written before that).
 3. ``false claim of completion``: the episode ended on the policy's word that the task was done.
 4. ``no candidate passed``: some round had no candidate the verifier accepted (a fallback).
 5. ``out of steps``: the plan was right and nothing above happened; the actions were too slow or
@@ -98,8 +99,9 @@ def _commits(data: ReportData, row: TrialRow) -> list[Commit] | None:
             if event.get("event") == "subplan":
                 subplan = event.get("text") or ""
             elif event.get("event") == "commit":
-                out.append(Commit((event.get("verdict") or {}).get("success") is True, event.get("aligned"),
-                                  subplan_kind(subplan)))
+                # the Held audit where the trace has it (a carried object is picked); older traces: the pad check
+                held = event["aligned_held"] if "aligned_held" in event else event.get("aligned")
+                out.append(Commit((event.get("verdict") or {}).get("success") is True, held, subplan_kind(subplan)))
     return out
 
 

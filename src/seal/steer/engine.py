@@ -52,7 +52,7 @@ from seal.steer.scoring import scoring_images, scoring_view
 from seal.steer.selection import Candidate, Check, Subplan
 from seal.steer.trace import Trace
 from seal.verify.base import Verdict, VerifyRequest
-from seal.verify.oracle import ground
+from seal.verify.oracle import checked_atoms, ground
 
 __all__ = ["Steerer"]
 
@@ -402,23 +402,30 @@ class Steerer:
             result.divergence.append(gap)
             target = real
         self.pool.sync(target)
-        aligned = self._aligned(reasoning)
+        aligned, held = self._aligned(reasoning)
         result.aligned.append(aligned)
         self.emit("commit", slot=winner.slot, round=winner.round, steps=target.steps, snapshot=target.id,
-                  ended_by=winner.ended_by, verdict=_verdict_dict(winner.verdict), aligned=aligned)
+                  ended_by=winner.ended_by, verdict=_verdict_dict(winner.verdict), aligned=aligned,
+                  aligned_held=held)
         return target
 
-    def _aligned(self, reasoning) -> bool | None:
+    def _aligned(self, reasoning) -> tuple[bool | None, bool | None]:
         """The seed's reasoning-action alignment, made measurable: do the goal atoms the oracle grounds
         the sub-plan to hold in the committed state (slot 0)? An audit for every method, verified or
         not; its answer never reaches the selection. A "sub-plan" that is the whole instruction (a
-        policy that writes none, like the non-reasoning twin) is not audited: that is task success."""
+        policy that writes none, like the non-reasoning twin) is not audited: that is task success.
+
+        Two answers, from one check: a pick under robosuite's pad check (``aligned``, what every stored
+        row's ``subplans_aligned`` counts, so it stays comparable) and under ``Held`` (``aligned_held``,
+        the oracle's and the expert's pick check: an object carried on a finger's body is picked)."""
         if reasoning.now.strip().lower() == self.pool.task.instruction.strip().lower():
-            return None
-        atoms = [str(a) for a in ground(reasoning.now, tuple(reasoning.plans), self._objects, reasoning.index).atoms]
-        if not atoms:
-            return None
-        return all(self.pool.check(atoms, slots=[0])[0].values())
+            return None, None
+        g = ground(reasoning.now, tuple(reasoning.plans), self._objects, reasoning.index)
+        pads, held = checked_atoms(g, "pads"), checked_atoms(g, "fingers")
+        if not pads:
+            return None, None
+        facts = self.pool.check(list(dict.fromkeys(pads + held)), slots=[0])[0]
+        return all(facts[a] for a in pads), all(facts[a] for a in held)
 
     # ---- what a selection may call (`seal.steer.selection.Loop`) -------------------------------
     @property

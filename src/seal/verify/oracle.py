@@ -113,6 +113,16 @@ def ground(subplan: str, plans: tuple[str, ...], names: list[str], index: int | 
     return Grounding((), f"unknown action in {subplan!r}")
 
 
+def checked_atoms(g: Grounding, grasp: str = GRASP_CHECKS[0]) -> list[str]:
+    """A grounding's atoms as facts to check, a pick's under the pick check ``grasp``: ``Held`` (each
+    finger touches it) or robosuite's ``Grasped`` (both pads), which the grounding itself names."""
+    if grasp not in GRASP_CHECKS:
+        raise InvalidInput(f"unknown grasp check {grasp!r}; valid: {', '.join(GRASP_CHECKS)}")
+    if grasp == "pads":
+        return [str(a) for a in g.atoms]
+    return [str(GoalAtom("held", a.args) if a.predicate == "grasped" else a) for a in g.atoms]
+
+
 def _one(atom: GoalAtom | None, reason: str) -> Grounding:
     return Grounding((atom,)) if atom else Grounding((), reason)
 
@@ -232,9 +242,7 @@ class OracleVerifier:
         self.grasp = grasp
 
     def _atoms(self, g: Grounding) -> list[str]:
-        if self.grasp == "pads":
-            return [str(a) for a in g.atoms]
-        return [str(GoalAtom("held", a.args) if a.predicate == "grasped" else a) for a in g.atoms]
+        return checked_atoms(g, self.grasp)
 
     def atoms_needed(self, request: VerifyRequest, objects: list[str]) -> list[str]:
         if request.task_level:  # the instruction: the task's own goal, no grounding of its words
