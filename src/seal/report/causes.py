@@ -236,8 +236,9 @@ def pass_display(rows: list[PassRow]) -> Table:
              "held: its goal atoms held in the committed state. Precision with a Wilson 95% interval. SEAL commits "
              "the first candidate of a round that passes, so a verifier's false passes are selected for: this "
              "precision sits below the same verifier's precision on single cases (`seal bench verifier`). The "
-             "oracle's passes hold by construction, except picks its Held check passes where the audit's pad "
-             "check (robosuite's Grasped) does not."]
+             "audit checks a pick with Held (each finger touches the object), as the oracle does, so the "
+             "oracle's passes hold by construction; traces written before 2026-12-05 audited picks with "
+             "robosuite's pad check, under which an object carried on a finger's body is not picked."]
     missing = sum(r.no_trace for r in rows)
     if missing:
         notes.append(f"{missing} trial(s) had no trace on disk and are left out.")
