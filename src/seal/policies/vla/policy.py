@@ -143,9 +143,9 @@ class VLAPolicy:
         # one prefix per distinct observation; rows showing the same one share it
         keys = [_obs_key(o) for o in obs_batch]
         unique = list(dict.fromkeys(keys))
-        noise = torch.stack([torch.randn(PREDICT_HORIZON, ACTION_DIM, generator=self._gens[r]) for r in rows])
-        if self.noise_scale != 1.0:  # the draws themselves stay the same: a row's stream is not shifted
-            noise = noise * self.noise_scale
+        # scaled after the draw, so a row's random stream is the same at every scale (x 1.0 is exact)
+        noise = self.noise_scale * torch.stack([torch.randn(PREDICT_HORIZON, ACTION_DIM, generator=self._gens[r])
+                                                for r in rows])
         with torch.autocast(self.model.device.type, dtype=torch.bfloat16, enabled=self.bf16):
             cond = self.condition([obs_batch[keys.index(k)] for k in unique], reasoning)
             index = [unique.index(k) for k in keys]
