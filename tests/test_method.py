@@ -43,7 +43,7 @@ def _shipped_digests() -> dict:
     import hashlib
 
     vla = {name: json.loads((SHIPPED_VLA / name / "manifest.json").read_text())["files"]["model.safetensors"]["sha256"][:12]
-           for name in ("reason", "twin", "reason_r0", "twin_r0", "reason_r2")}
+           for name in ("reason", "twin", "reason_r0", "twin_r0", "reason_r2", "twin_r3")}
     learned = {name: hashlib.sha1((d / "model.safetensors").read_bytes() + (d / "config.json").read_bytes()).hexdigest()[:12]
                for name, d in (("learned", SHIPPED_VERIFIER), ("learned:expert", EXPERT_VERIFIER),
                                ("learned:vla_rounds", VLA_ROUNDS_VERIFIER),
@@ -73,8 +73,9 @@ def test_config_hashes_of_plugins_are_kept(tmp_path):
     # These pins name the shipped weights of today; a retrained shipped checkpoint is a new method (re-pin then).
     # The first shipped pair stays loadable by name (vla:reason_r0, vla:twin_r0): the pins below name it that
     # way, so stores made with it keep finding their trials after the round-2 VLA and its twin shipped.
-    assert _shipped_digests() == {"reason": "4edbeeb3b398", "twin": "cd9f0d7bdb3c", "reason_r0": "009dcdd7fb35",
-                                  "twin_r0": "14bb7098169e", "reason_r2": "563400068f48", "learned": "3ef801b0d635",
+    assert _shipped_digests() == {"reason": "4edbeeb3b398", "twin": "9b6a737845d5", "reason_r0": "009dcdd7fb35",
+                                  "twin_r0": "14bb7098169e", "reason_r2": "563400068f48", "twin_r3": "cd9f0d7bdb3c",
+                                  "learned": "3ef801b0d635",
                                   "learned:expert": "8818a7a2714f", "learned:vla_rounds": "808648b1ea87",
                                   "learned:dagger_rounds": "c0646b399509", "learned:pad_labels": "91510e95b336",
                                   "value:l10_demos": "a353a1507bf5", "value:l10_twin_rollouts": "257c70543923"}
