@@ -21,10 +21,14 @@ def test_config_hashes_of_older_stores_are_kept():
     """Hashes written by the MethodSpec of eval/trials.py before the fields were added (computed
     with that code): a store made then must find its trials now."""
     # every SEAL result before the declared-completion check ran as done_check="trust", and every scripted-
-    # expert result before 2026-12-05 with the pad check, in the oracle (grasp) and in the expert (grip)
-    assert MethodSpec(done_check="trust", grasp="pads", grip="pads").config_hash == "7687d79a15"
+    # expert result before 2026-12-05 with the pad check, in the oracle (grasp) and in the expert (grip); every
+    # SEAL result before 2026-12-05 placed a repeated sub-plan by counting done items (subplan_ref)
+    old = dict(done_check="trust", grasp="pads", grip="pads", subplan_ref="count")
+    assert MethodSpec(**old).config_hash == "7687d79a15"
     assert MethodSpec(method="base", grip="pads").config_hash == "85d6a51ef6"
-    assert MethodSpec(k=5, rounds=1, knobs="clean", done_check="trust", grasp="pads", grip="pads").config_hash == "d7489a2d17"
+    assert MethodSpec(k=5, rounds=1, knobs="clean", **old).config_hash == "d7489a2d17"
+    assert MethodSpec().config_hash != MethodSpec(subplan_ref="count").config_hash  # the rule is a new config
+    assert MethodSpec(method="base").config_hash == MethodSpec(method="base", subplan_ref="count").config_hash
     assert MethodSpec(method="random", k=4, render="fast", grip="pads").config_hash == "259cb3eb85"
     assert MethodSpec(method="base").config_hash != "85d6a51ef6"  # today's expert reads Held: a new config
 
@@ -82,49 +86,50 @@ def test_config_hashes_of_plugins_are_kept(tmp_path):
     value = _fixed_value_checkpoint(tmp_path)
     # Every oracle result these pins stand for ran with the pad check for picks (grasp="pads", left out
     # of the hash as its legacy value); the oracle's default since 2026-12-05 is Held, a new hash.
+    # Every SEAL result among them placed a repeated sub-plan by counting done items (subplan_ref="count", legacy too).
     cases = [  # (spec, config hash, label, canonical form: its keys in this order)
-        (MethodSpec(policy="vla:reason_r0", grasp="pads"), "0c35fb9f53", "seal[policy=vla,render=fast,policy_ckpt=009dcdd7fb35,grasp=pads]",
+        (MethodSpec(subplan_ref="count", policy="vla:reason_r0", grasp="pads"), "0c35fb9f53", "seal[policy=vla,render=fast,policy_ckpt=009dcdd7fb35,subplan_ref=count,grasp=pads]",
          {"method": "seal", "k": 10, "rounds": 2, "verifier": "oracle", "model": None, "false_positive": 0.0,
           "false_negative": 0.0, "policy": "vla", "mode": "sync", "render": "fast", "policy_ckpt": "009dcdd7fb35",
           "done_check": "verify"}),  # a named checkpoint sits before done_check; the hash does not see the order
         (MethodSpec(method="base", policy="vla:reason_r0"), "767e9bd037", "base[policy=vla,render=fast,policy_ckpt=009dcdd7fb35]",
          {"method": "base", "policy": "vla", "mode": "sync", "render": "fast", "policy_ckpt": "009dcdd7fb35"}),
-        (MethodSpec(policy="vla:twin_r0", grasp="pads"), "ea43916c1f", "seal[policy=vla,render=fast,policy_ckpt=14bb7098169e,grasp=pads]", None),
+        (MethodSpec(subplan_ref="count", policy="vla:twin_r0", grasp="pads"), "ea43916c1f", "seal[policy=vla,render=fast,policy_ckpt=14bb7098169e,subplan_ref=count,grasp=pads]", None),
         (MethodSpec(method="base", policy="vla:twin_r0"), "d1fec96036",
          "base[policy=vla,render=fast,policy_ckpt=14bb7098169e]", None),
-        (MethodSpec(policy="vla", policy_ckpt="twin_r0", planner="annotations", check_every=40, grasp="pads"), "1dc4345fc4",
-         "seal[policy=vla,render=fast,check_every=40,planner=annotations,policy_ckpt=14bb7098169e,grasp=pads]", None),
+        (MethodSpec(subplan_ref="count", policy="vla", policy_ckpt="twin_r0", planner="annotations", check_every=40, grasp="pads"), "1dc4345fc4",
+         "seal[policy=vla,render=fast,check_every=40,planner=annotations,policy_ckpt=14bb7098169e,subplan_ref=count,grasp=pads]", None),
         # the verifier every table before 2026-12-04 used, by its name and by its directory
-        (MethodSpec(verifier="learned:expert", grip="pads"), "df755dab3f", "seal[verifier=learned,model=8818a7a2714f,grip=pads]",
+        (MethodSpec(subplan_ref="count", verifier="learned:expert", grip="pads"), "df755dab3f", "seal[verifier=learned,model=8818a7a2714f,subplan_ref=count,grip=pads]",
          {"method": "seal", "k": 10, "rounds": 2, "verifier": "learned", "model": "8818a7a2714f", "false_positive": 0.0,
           "false_negative": 0.0, "policy": "scripted", "knobs": "misaligned", "mode": "sync", "render": "stock",
           "done_check": "verify"}),
-        (MethodSpec(verifier="learned", model=str(EXPERT_VERIFIER), done_check="trust", grip="pads"), "38151112c4",
-         "seal[verifier=learned,model=8818a7a2714f,done_check=trust,grip=pads]", None),
+        (MethodSpec(subplan_ref="count", verifier="learned", model=str(EXPERT_VERIFIER), done_check="trust", grip="pads"), "38151112c4",
+         "seal[verifier=learned,model=8818a7a2714f,done_check=trust,subplan_ref=count,grip=pads]", None),
         (MethodSpec(method="value", value_ckpt=str(value), grip="pads"), "34e1da3e4d", "value[ckpt=vgps,grip=pads]",
          {"method": "value", "k": 10, "policy": "scripted", "knobs": "misaligned", "mode": "sync", "render": "stock",
           "value_ckpt": "bd58b24a6834", "value_goal": "task"}),
         (MethodSpec(method="value", value_ckpt=str(value / "value.json"), value_goal="subplan", k=4, grip="pads"), "73938379e0",
          "value[ckpt=value.json,k=4,value_goal=subplan,grip=pads]", None),
-        (MethodSpec(policy="remote", planner="annotations", prompt="subplan", grasp="pads"), "531977047c",
-         "seal[policy=remote,planner=annotations,prompt=subplan,grasp=pads]",
+        (MethodSpec(subplan_ref="count", policy="remote", planner="annotations", prompt="subplan", grasp="pads"), "531977047c",
+         "seal[policy=remote,planner=annotations,prompt=subplan,subplan_ref=count,grasp=pads]",
          {"method": "seal", "k": 10, "rounds": 2, "verifier": "oracle", "model": None, "false_positive": 0.0,
           "false_negative": 0.0, "policy": "remote", "mode": "sync", "render": "stock", "planner": "annotations",
           "prompt": "subplan", "done_check": "verify"}),
-        (MethodSpec(policy="remote", planner="vlm", planner_model="gpt-4o", annotations="a.json", prompt="subplan",
+        (MethodSpec(subplan_ref="count", policy="remote", planner="vlm", planner_model="gpt-4o", annotations="a.json", prompt="subplan",
                     port=9000, grasp="pads"), "ed1ffc1e9d",
-         "seal[policy=remote,planner=vlm,annotations=a.json,planner_model=gpt-4o,prompt=subplan,grasp=pads]", None),
-        (MethodSpec(verifier="noisy", false_positive=0.1, false_negative=0.2, grasp="pads", grip="pads"), "0d77a42d98",
-         "seal[verifier=noisy,false_positive=0.1,false_negative=0.2,grip=pads,grasp=pads]", None),
-        (MethodSpec(mismatch=(1.3, 0.8, 1.2), grasp="pads", grip="pads"), "d741ef288a", "seal[mismatch=1.3/0.8/1.2,grip=pads,grasp=pads]",
+         "seal[policy=remote,planner=vlm,annotations=a.json,planner_model=gpt-4o,prompt=subplan,subplan_ref=count,grasp=pads]", None),
+        (MethodSpec(subplan_ref="count", verifier="noisy", false_positive=0.1, false_negative=0.2, grasp="pads", grip="pads"), "0d77a42d98",
+         "seal[verifier=noisy,false_positive=0.1,false_negative=0.2,subplan_ref=count,grip=pads,grasp=pads]", None),
+        (MethodSpec(subplan_ref="count", mismatch=(1.3, 0.8, 1.2), grasp="pads", grip="pads"), "d741ef288a", "seal[mismatch=1.3/0.8/1.2,subplan_ref=count,grip=pads,grasp=pads]",
          {"method": "seal", "k": 10, "rounds": 2, "verifier": "oracle", "model": None, "false_positive": 0.0,
           "false_negative": 0.0, "policy": "scripted", "knobs": "misaligned", "mode": "sync", "render": "stock",
           "mismatch": [1.3, 0.8, 1.2], "done_check": "verify"}),
-        (MethodSpec(done_check="trust", grasp="pads", grip="pads"), "7687d79a15", "seal[done_check=trust,grip=pads,grasp=pads]", None),
-        (MethodSpec(k=4, verifier="noisy", false_positive=0.1, mismatch=(1.3, 0.8, 1.2), done_check="trust", pick="best",
+        (MethodSpec(subplan_ref="count", done_check="trust", grasp="pads", grip="pads"), "7687d79a15", "seal[done_check=trust,subplan_ref=count,grip=pads,grasp=pads]", None),
+        (MethodSpec(subplan_ref="count", k=4, verifier="noisy", false_positive=0.1, mismatch=(1.3, 0.8, 1.2), done_check="trust", pick="best",
                     verify_order="arrival", subplan_budget=120, grasp="pads", grip="pads"), "41e0d352c0",
          "seal[k=4,verifier=noisy,false_positive=0.1,mismatch=1.3/0.8/1.2,subplan_budget=120,pick=best,"
-         "verify_order=arrival,done_check=trust,grip=pads,grasp=pads]", None),
+         "verify_order=arrival,done_check=trust,subplan_ref=count,grip=pads,grasp=pads]", None),
         (MethodSpec(method="random", k=3, render="fast", mode="replay", grip="pads"), "551786a35d", "random[k=3,mode=replay,render=fast,grip=pads]",
          None),
     ]
@@ -133,8 +138,8 @@ def test_config_hashes_of_plugins_are_kept(tmp_path):
         if canonical is not None:
             assert list(spec.canonical().items()) == list(canonical.items())
     # the same methods written as `seal eval --methods` items
-    (vla, twin, noisy) = parse_methods("seal:policy=vla:policy_ckpt=reason_r0:grasp=pads,base:policy=vla:policy_ckpt=twin_r0,"
-                                       "seal:verifier=noisy:false_positive=0.1:false_negative=0.2:grasp=pads:grip=pads")
+    (vla, twin, noisy) = parse_methods("seal:policy=vla:policy_ckpt=reason_r0:grasp=pads:subplan_ref=count,base:policy=vla:policy_ckpt=twin_r0,"
+                                       "seal:verifier=noisy:false_positive=0.1:false_negative=0.2:grasp=pads:grip=pads:subplan_ref=count")
     assert [m.config_hash for m in (vla, twin, noisy)] == ["0c35fb9f53", "d1fec96036", "0d77a42d98"]
     (shipped,) = parse_methods("seal:policy=vla")
     (reason,) = parse_methods("seal:policy=vla:policy_ckpt=reason")  # the shipped default, named

@@ -65,6 +65,9 @@ def test_standard_methods_read_as_a_person_would_write_them():
     # rows stored before the oracle's Held check ran with the pad check: their name says so
     pads = MethodSpec(method="seal", policy="vla", verifier_options=OracleOptions(grasp="pads")).canonical()
     assert "grasp" not in pads and display_name(pads) == "reasoning VLA + SEAL (oracle, pad-contact picks)"
+    # and before repeated sub-plans were placed after the done list's latest item, by counting done items
+    counted = MethodSpec(method="seal", policy="vla", subplan_ref="count").canonical()
+    assert "subplan_ref" not in counted and display_name(counted) == "reasoning VLA + SEAL (oracle, repeats by count)"
     assert display_name(MethodSpec(method="random").canonical()) == "scripted expert + random pick"
 
 

@@ -336,6 +336,15 @@ def test_a_repeated_subplan_is_judged_where_the_policy_stands_in_its_plan(tmp_pa
     assert Reasoning(plans=SOUP_PLANS, done=SOUP_PLANS[:3], now=SOUP_PLANS[3]).index == 3
     assert Reasoning(plans=SOUP_PLANS, done=SOUP_PLANS[:1], now=SOUP_PLANS[1]).index == 1
     assert Reasoning(plans=SOUP_PLANS, done=(), now="open the drawer").index is None
+    # a done list that also claims a later sub-plan (the VLA on the moka pots): the repeated text is the one
+    # after the latest done item it follows, not the one the count of done items lands on
+    moka = ("pick up the first moka pot", "place it on the stove", "pick up the second moka pot",
+            "place it on the stove", "turn on the stove")
+    garbled = Reasoning(plans=moka, done=(moka[0], moka[4]), now=moka[1])
+    assert garbled.index == 1 and garbled.position("count") == 3
+    assert Reasoning(plans=moka, done=moka[:3] + moka[4:], now=moka[3]).index == 3
+    with pytest.raises(InvalidInput, match="valid: after_done, count"):
+        garbled.position("last")
     requests = Requests()
     with EnvPool(SOUP, k=2, workers=1) as pool:
         result = Steerer(pool, SkipsAhead(expert_policy(SOUP, FailureKnobs(), seed=0)), OracleVerifier(),

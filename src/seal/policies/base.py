@@ -30,6 +30,8 @@ from seal.sim.observation import Observation
 PREDICT_HORIZON = 16  # actions predicted per chunk
 ACTION_HORIZON = 5  # actions executed before the policy is queried again
 THINK, ACT = "<think>", "<act>"
+# How a repeated sub-plan text is placed in the plan (`Reasoning.position`); the first is the default
+SUBPLAN_REFS = ("after_done", "count")
 
 
 @dataclass(frozen=True)
@@ -46,14 +48,33 @@ class Reasoning:
 
     @property
     def index(self) -> int | None:
+        """Where ``now`` stands in ``plans`` (`position` by its default rule)."""
+        return self.position()
+
+    def position(self, rule: str = SUBPLAN_REFS[0]) -> int | None:
         """Where ``now`` stands in ``plans``, None when it is not in them. Plans repeat texts (two
-        "place it in the basket"), and what "it" means depends on which one: the policy says where it
-        is by what it lists as done, so it is the first occurrence after the done items (or the
-        first at all when the done list runs past it)."""
+        "place it in the basket"), and what "it" means depends on which one; the policy says where
+        it is by what it lists as done.
+
+        ``after_done``: the occurrence that follows the latest done item it follows in the plan
+        (done "pick up the first moka pot. turn on the stove." puts "place it on the stove" after
+        the first pick, whatever else the done list claims); with no such item, as ``count``.
+        ``count``: the first occurrence at or after the number of done items (or the first at all
+        when the done list runs past it). The two agree whenever the done list is a prefix of the
+        plan; ``count`` is what every result stored before 2026-12-05 ran with, and it misplaces a
+        repeated sub-plan after a done list that claims a later item too (docs/results.md)."""
+        if rule not in SUBPLAN_REFS:
+            raise InvalidInput(f"unknown sub-plan reference rule {rule!r}; valid: {', '.join(SUBPLAN_REFS)}")
         positions = [i for i, p in enumerate(self.plans) if p == self.now]
-        if not positions:
-            return None
-        return next((i for i in positions if i >= len(self.done)), positions[0])
+        if len(positions) <= 1:
+            return positions[0] if positions else None
+        by_count = next((i for i in positions if i >= len(self.done)), positions[0])
+        if rule == "after_done":
+            for item in reversed(self.done):
+                after = [i for i in positions if i > 0 and self.plans[i - 1] == item]
+                if after:
+                    return by_count if by_count in after else after[0]
+        return by_count
 
     def text(self) -> str:
         """The reasoning as the policy writes it between <think> and <act>."""

@@ -192,6 +192,10 @@ def _steering_notes(config: dict) -> list[str]:
             notes.append(f"check every {config['check_every']} steps")
         if config.get("done_check") == "trust":
             notes.append("policy's done trusted")
+        # Stored before the rule existed: a repeated sub-plan text was placed by counting the done items
+        # (`seal.policies.base.Reasoning.position`), which misjudges "it" after a garbled done list
+        if config.get("subplan_ref", "count") == "count":
+            notes.append("repeats by count")
     if method == "value" and (q := _value_phrase(config)):
         notes.append(q)
     if config.get("value_goal", DEFAULTS["value_goal"]) != DEFAULTS["value_goal"]:
@@ -241,7 +245,7 @@ def _setting_notes(config: dict, vlas: dict[str, KnownVLA]) -> list[str]:
 # Settings the functions above put into words (or deliberately leave out).
 _NAMED = {"knobs", "render", "mode", "mismatch", "subplan_budget", "planner", "planner_model", "annotations", "prompt",
           "k", "rounds", "verifier", "model", "false_positive", "false_negative", "pick", "verify_order",
-          "check_every", "done_check", "value_goal", "threshold", "grasp", "grip", "noise_scale"}
+          "check_every", "done_check", "value_goal", "threshold", "grasp", "grip", "noise_scale", "subplan_ref"}
 
 
 def _show(value) -> str:

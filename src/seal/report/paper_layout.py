@@ -27,7 +27,8 @@ SECTIONS = (("Table II layout: in distribution (LIBERO-10)", ("libero_10",)),
 # what tells one verifier from another: its name and every option some verifier plug-in declares (a
 # learned verifier's threshold, a VLM's model, injected error rates)
 VERIFIER_KEYS = frozenset({"verifier"} | VERIFIERS.option_names())
-STEERING_ONLY = frozenset({"k", "rounds", "check_every", "pick", "verify_order", "done_check"}) | VERIFIER_KEYS
+STEERING_ONLY = frozenset({"k", "rounds", "check_every", "pick", "verify_order", "done_check",
+                           "subplan_ref"}) | VERIFIER_KEYS
 
 
 @dataclass

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 from seal.errors import InvalidInput
 from seal.options import COUNT, check_choices, option
-from seal.policies.base import ACTION_HORIZON
+from seal.policies.base import ACTION_HORIZON, SUBPLAN_REFS
 from seal.registry import Plugin, Registry
 
 if TYPE_CHECKING:
@@ -72,6 +72,13 @@ class LoopSettings:
                   "is complete, and a refusal sends it back to its last claimed sub-plan | trust: the episode ends on "
                   "the policy's word (results before the check)",
         choices=DONE_CHECKS, legacy="trust", per_method=True)
+    # seal: a plan may repeat a sub-plan text ("place it on the stove" twice), and which one the policy is at
+    # decides what "it" is for the verifier and the alignment audit (`seal.policies.base.Reasoning.position`)
+    subplan_ref: str = option(
+        "after_done", "seal: where a repeated sub-plan text stands in the plan: after_done places it after the "
+                      "latest done item it follows | count: at the number of done items (results before "
+                      "2026-12-05; wrong when the policy lists a later sub-plan as done)",
+        choices=SUBPLAN_REFS, legacy="count", per_method=True)
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:

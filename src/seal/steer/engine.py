@@ -309,7 +309,7 @@ class Steerer:
         """What the verifier judges: the sub-plan and the candidate's slot as it is now."""
         reasoning = sub.reasoning
         request = VerifyRequest(subplan=reasoning.now, instruction=self.pool.task.instruction, plans=reasoning.plans,
-                                index=reasoning.index,
+                                index=reasoning.position(self.config.subplan_ref),
                                 first_agent=sub.first_agent, task=self.pool.task.key, candidate=c.slot)
         atoms = self.verifier.atoms_needed(request, self._objects)
         final = self._observe(c.slot, images=self.verifier.needs_images, atoms=atoms)
@@ -420,7 +420,7 @@ class Steerer:
         the oracle's and the expert's pick check: an object carried on a finger's body is picked)."""
         if reasoning.now.strip().lower() == self.pool.task.instruction.strip().lower():
             return None, None
-        g = ground(reasoning.now, tuple(reasoning.plans), self._objects, reasoning.index)
+        g = ground(reasoning.now, tuple(reasoning.plans), self._objects, reasoning.position(self.config.subplan_ref))
         pads, held = checked_atoms(g, "pads"), checked_atoms(g, "fingers")
         if not pads:
             return None, None

@@ -207,7 +207,7 @@ class RandomSelection(Selection):
 class SealSelection(Selection):
     name = "seal"
     verifies = True
-    uses = ("k", "rounds", "check_every", "pick", "verify_order", "done_check")
+    uses = ("k", "rounds", "check_every", "pick", "verify_order", "done_check", "subplan_ref")
 
     def __init__(self, pick: str = "first"):
         self.pick = pick
