@@ -429,3 +429,32 @@ def test_a_declared_completion_is_verified(pool, tmp_path):
         result = Steerer(pool, DeclaresDoneEarly(expert_policy(BOOK, FailureKnobs(), seed=0)), verifier,
                          replace(config, done_check=done_check)).run(0)
         assert result.ended_by == "policy_finished" and not result.success and result.done_checks == checks_made
+
+
+def test_the_repeated_subplan_audit_counts_where_the_rules_disagree(tmp_path):
+    """scripts/repeated_subplans.py on two hand-written traces: one sub-plan placed differently by the two
+    rules, one the same; an unknown configuration is an error that lists the ones there."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from seal.policies.base import Reasoning
+
+    moka = ("pick up the first moka pot", "place it on the stove", "pick up the second moka pot",
+            "place it on the stove", "turn on the stove")
+    events = [Reasoning(moka, (moka[0], moka[4]), moka[1]), Reasoning(moka, moka[:3], moka[3])]
+    for trial, r in enumerate(events):
+        d = tmp_path / "libero_10" / "8" / "seal-abc" / f"trial{trial:03d}"
+        d.mkdir(parents=True)
+        (d / "trace.jsonl").write_text(json.dumps({"event": "subplan", "step": 5, "text": r.now,
+                                                   "reasoning": r.text()}) + "\n")
+    script = Path(__file__).resolve().parents[1] / "scripts" / "repeated_subplans.py"
+    run = subprocess.run([sys.executable, str(script), str(tmp_path), "--configs", "seal-abc"],
+                         capture_output=True, text=True, check=True)
+    got = json.loads(run.stdout)["seal-abc"]
+    assert (got["subplans"], got["disagree"], got["by_task"]) == (2, 1, {"8": 1})
+    assert (got["example"]["after_done"], got["example"]["count"]) == (1, 3)
+    bad = subprocess.run([sys.executable, str(script), str(tmp_path), "--configs", "seal-xyz"],
+                         capture_output=True, text=True)
+    assert bad.returncode == 2 and "configurations there: seal-abc" in bad.stderr
