@@ -13,7 +13,8 @@ robosuite's ``Grasped`` (both finger pads) with ``grasp="pads"``, what every res
 2026-12-05 ran with: the pad check misses 20-67% of the steps in which the VLA carries a mug or a
 moka pot by its handle (docs/verifier.md, `seal bench grasp`).
 
-"it" refers to the object of the latest pick before this sub-plan in the plan list. Text that
+"it" refers to the object of the latest pick before this sub-plan in the plan list; where the plan
+repeats the text, the loop says which occurrence (`seal.policies.base.Reasoning.position`). Text that
 cannot be grounded (unknown verb, no matching object in the scene, an ambiguous reference, a
 place whose destination is another action or the object itself, as garbled reasoning writes)
 gives an explicit ``unknown`` verdict, never a guess.
