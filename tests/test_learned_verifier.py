@@ -416,6 +416,18 @@ def test_several_collections_train_as_one_and_a_repeated_one_is_refused(tmp_path
         table = ds.read_cases(c).to_pylist()
         ds.write_shard(c, path.name, [{**r, "policy": "vla"} for r in table])
     assert len(load_arrays([a, c], 32)[0]) == 24
+    # Nor another version of the same policy on the same starts: a case is also the weights' digest
+    d = tmp_path / "vla_next"
+    shutil.copytree(c, d)
+    for root, digest in ((c, "aaaaaaaaaaaa"), (d, "bbbbbbbbbbbb")):
+        info = json.loads((root / "info.json").read_text())
+        info["collection"] = {**info.get("collection", {}), "policy_ckpt_digest": digest}
+        (root / "info.json").write_text(json.dumps(info))
+    assert len(load_arrays([c, d], 32, cache_dir=tmp_path / "cache")[0]) == 24
+    # the same case ids under other weights: another fingerprint, so another image cache
+    assert load_arrays(d, 32, cache_dir=tmp_path / "cache")[1] != load_arrays(c, 32, cache_dir=tmp_path / "cache")[1]
+    with pytest.raises(InvalidInput, match="vla@bbbbbbbbbbbb policy"):
+        load_arrays([d, d], 32)
     assert main(["train", "verifier", "--data", f"{a},{b}", "--out", str(tmp_path / "run"), "--steps", "2",
                  "--batch-size", "8", "--image-size", "32", "--holdout-tasks", "libero_90/9"]) == 0
     manifest = json.loads((tmp_path / "run" / "manifest.json").read_text())

@@ -178,7 +178,11 @@ def _load_one(data: Path, size: int, cache_dir: Path | None, progress) -> tuple[
     meta = ds.read_cases(data, columns=meta_cols).to_pydict()
     if not meta["case_id"]:
         raise InvalidInput(f"{data} holds no cases; collect some with `seal verify collect`")
-    fingerprint = hashlib.sha1("\n".join(meta["case_id"]).encode()).hexdigest()[:16]
+    # Case ids number starts, rounds and candidates, not weights: two VLA versions on the same fresh starts
+    # write the same ids, so a case is also its policy's digest (and so is the image cache's name)
+    digest = ds.collection_digest(ds.read_info(data))
+    owner = [f"{p}@{digest}" if digest else p for p in meta["policy"]]
+    fingerprint = hashlib.sha1("\n".join(([digest] if digest else []) + meta["case_id"]).encode()).hexdigest()[:16]
     cache = None if cache_dir is None else Path(cache_dir) / f"cache-{size}-{fingerprint}.npz"
     if cache is not None and cache.is_file():
         with np.load(cache) as f:
@@ -207,14 +211,15 @@ def _load_one(data: Path, size: int, cache_dir: Path | None, progress) -> tuple[
     return CaseArrays(first, final, wrist, list(meta["subplan"]), context,
                       np.asarray(meta["label"], dtype=np.float32), list(meta["task"]), list(meta["kind"]),
                       init_key, list(meta["init_source"]), list(meta["policy"])), \
-        [f"{p}|{c}" for p, c in zip(meta["policy"], meta["case_id"])]
+        [f"{p}|{c}" for p, c in zip(owner, meta["case_id"])]
 
 
 def load_arrays(data: Path | list[Path], size: int, cache_dir: Path | None = None,
                 progress=None) -> tuple[CaseArrays, str]:
     """Every case of one or more collections at ``size`` px, and a fingerprint of the data (its cases,
-    in the order given). A case is its policy and case id: two collections made with different
-    policies may number their cases alike, but the same case twice means a collection given twice."""
+    in the order given). A case is its policy (with the weights' digest for a learned one) and case id:
+    two collections made with different policies may number their cases alike, but the same case twice
+    means a collection given twice."""
     dirs = [Path(data)] if isinstance(data, (str, Path)) else [Path(d) for d in data]
     parts = [_load_one(d, size, cache_dir, progress) for d in dirs]
     ids = [i for _, part_ids in parts for i in part_ids]
@@ -413,7 +418,7 @@ def case_policies(datas: list[Path], arrays, train_idx: np.ndarray) -> dict:
     for d in datas:
         info = ds.read_info(d).get("collection", {})
         sources.append({"data": str(d), "policy": info.get("policy") or info.get("settings", {}).get("policy"),
-                        "policy_ckpt_digest": info.get("policy_ckpt_digest") or info.get("vla_ckpt_digest")})
+                        "policy_ckpt_digest": ds.collection_digest({"collection": info})})
     return {"train_cases_by_policy": dict(sorted(trained.items())), "sources": sources}
 
 

@@ -216,6 +216,13 @@ def read_info(root: Path) -> dict:
     return info
 
 
+def collection_digest(info: dict) -> str | None:
+    """The digest of the learned policy whose rounds made a collection (None: the scripted expert, a
+    demonstration replay, or a collection written before digests were recorded)."""
+    c = info.get("collection", {})
+    return c.get("policy_ckpt_digest") or c.get("vla_ckpt_digest")
+
+
 def shard_paths(root: Path) -> list[Path]:
     return sorted(p for p in (Path(root) / "data").glob("*.parquet") if not p.name.startswith("."))
 
