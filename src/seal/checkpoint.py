@@ -23,6 +23,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import shutil
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -163,3 +164,35 @@ class CheckpointFormat:
         """12 hex digits over the verified bytes of ``named_by`` (`identity`)."""
         return identity(directory, kind=self.kind, required=self.required, files=self.named_by,
                         algorithm=self.algorithm)
+
+    def install(self, source: Path, target: Path, fields: dict) -> Path:
+        """Copy the checkpoint at ``source`` to ``target`` (which must not exist) and add ``fields`` to the
+        copy's manifest (where it came from, why it ships). The source is checked before a byte is copied
+        and the copy before it takes its name, so a damaged checkpoint never ships and an interrupted
+        copy leaves nothing under ``target`` (it is staged beside it and renamed last)."""
+        source, target = Path(source), Path(target)
+        self.digest(source)
+        if target.exists():
+            raise InvalidInput(f"{target} exists already; a shipped checkpoint is never copied over")
+        staging = target.with_name(f".{target.name}.staging")
+        shutil.rmtree(staging, ignore_errors=True)
+        staging.mkdir(parents=True)
+        for name in (*self.required, MANIFEST):
+            shutil.copy2(source / name, staging / name)
+        amend_manifest(staging, fields)
+        self.digest(staging)
+        staging.rename(target)
+        return target
+
+
+def set_aside(current: Path, kept: Path, shipped: dict) -> Path:
+    """Move the shipped checkpoint ``current`` to ``kept`` (a name it stays loadable under, so the
+    tables made with it stay reproducible) and merge ``shipped`` (its label from now on, what
+    replaced it) into its manifest's ``shipped`` record. Its files, and so its digest, are unchanged."""
+    current, kept = Path(current), Path(kept)
+    if kept.exists():
+        raise InvalidInput(f"{kept} exists already; choose another name to keep {current} under")
+    shutil.move(str(current), str(kept))
+    previous = json.loads((kept / MANIFEST).read_text()).get("shipped", {})
+    amend_manifest(kept, {"shipped": {**previous, **shipped}})
+    return kept

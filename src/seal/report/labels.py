@@ -32,7 +32,7 @@ VERIFIER_NAMES = {"oracle": "oracle", "noisy": "noisy oracle", "learned": "learn
                   "openai": "OpenAI VLM", "gemini": "Gemini VLM"}
 # `learned:expert`: trained on the scripted expert's rounds; `learned:vla_rounds`: fine-tuned on the first VLA's;
 # `learned:dagger_rounds`: that one on the DAgger rounds 1-3 too; `learned:pad_labels`: on the round-2 VLA's SEAL
-# rounds with picks labelled by the pad check
+# rounds with picks labelled by the pad check. Those set aside since carry their label in their manifest.
 EARLIER_VERIFIER_NAMES = {"expert": "expert rounds", "vla_rounds": "the first VLA's rounds",
                           "dagger_rounds": "the DAgger rounds", "pad_labels": "pad-check labels"}
 # V-GPS Q-functions shipped beside the default (`seal.value.DEFAULT_SHIPPED`, which goes unnamed)
@@ -79,12 +79,17 @@ def earlier_verifiers() -> dict[str, str]:
     from seal.errors import InvalidInput
     from seal.verify.learned import CHECKPOINT, SHIPPED
 
+    from seal.checkpoint import MANIFEST
+
     out = {}
     for name, path in SHIPPED.items():
         try:
-            out[CHECKPOINT.digest(path)] = f"learned verifier from {EARLIER_VERIFIER_NAMES.get(name, name)}"
-        except (InvalidInput, OSError):  # a damaged or missing copy: its rows keep the generic name
+            digest = CHECKPOINT.digest(path)
+            # set aside by `seal.verify.ship`: the label it was given then
+            label = (json.loads((path / MANIFEST).read_text()).get("shipped") or {}).get("label")
+        except (InvalidInput, OSError, ValueError):  # a damaged or missing copy: its rows keep the generic name
             continue
+        out[digest] = f"learned verifier from {EARLIER_VERIFIER_NAMES.get(name) or label or name}"
     return out
 
 

@@ -10,13 +10,11 @@ made with it stay reproducible; pointing ``DEFAULT_SHIPPED`` at a new one is a r
 from __future__ import annotations
 
 import json
-import shutil
 from datetime import date
 from pathlib import Path
 
-from seal.checkpoint import MANIFEST, amend_manifest
 from seal.errors import InvalidInput
-from seal.value import SHIPPED_DIR, VALUE_CHECKPOINT, VALUE_FILES, value_directory
+from seal.value import SHIPPED_DIR, VALUE_CHECKPOINT, value_directory
 
 # the run's summary fields worth keeping once the run directory is gone
 SUMMARY_FIELDS = ("dataset", "image_size", "goals", "config", "heldout", "heldout_rollouts", "train_fit",
@@ -36,14 +34,7 @@ def ship(run: str | Path, name: str, *, root: Path = SHIPPED_DIR, note: str = ""
         raise InvalidInput(f"{target} holds a shipped Q-function already; ship under another name")
     summary_path = source / "summary.json"
     summary = json.loads(summary_path.read_text()) if summary_path.is_file() else {}
-    staging = Path(root) / f".{name}.staging"
-    shutil.rmtree(staging, ignore_errors=True)
-    staging.mkdir(parents=True)
-    for f in (*VALUE_FILES, MANIFEST):
-        shutil.copy2(source / f, staging / f)
     shipped = {"name": name, "from_run": str(source.resolve()), "on": date.today().isoformat(), "digest": digest,
                **({"note": note} if note else {})}
-    amend_manifest(staging, {"shipped": shipped, "training": {k: summary[k] for k in SUMMARY_FIELDS if k in summary}})
-    VALUE_CHECKPOINT.digest(staging)  # the copy is whole before it takes the name
-    staging.rename(target)
-    return target
+    return VALUE_CHECKPOINT.install(source, target, {"shipped": shipped, "training": {
+        k: summary[k] for k in SUMMARY_FIELDS if k in summary}})

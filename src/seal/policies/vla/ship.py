@@ -14,14 +14,12 @@ its manifest gains the label reports give it from then on.
 
 from __future__ import annotations
 
-import json
-import shutil
 from datetime import date
 from pathlib import Path
 
-from seal.checkpoint import MANIFEST, amend_manifest
+from seal.checkpoint import set_aside
 from seal.errors import InvalidInput
-from seal.policies.vla.locate import CHECKPOINT, FILES, SHIPPED_DIR, resolve_checkpoint
+from seal.policies.vla.locate import CHECKPOINT, SHIPPED_DIR, resolve_checkpoint
 
 # What one link of the chain keeps from its manifest (the rest, e.g. held-out episode lists, stays
 # in the run directory).
@@ -74,28 +72,11 @@ def ship(run: str | Path, name: str, *, keep_as: str | None = None, label: str |
         if keep_as is None:
             raise InvalidInput(f"{target} holds a shipped checkpoint; give keep_as (a name to keep it loadable "
                                f"under) so tables made with it stay reproducible")
-        kept = root / keep_as
-        if kept.exists():
-            raise InvalidInput(f"{kept} exists already; choose another name to keep {target} under")
-        shutil.move(str(target), str(kept))
-        if keep_label:
-            amend_manifest(kept, {"shipped": {**_read(kept).get("shipped", {}), "label": keep_label,
-                                      "replaced_by": chain[0]["digest"], "replaced_on": date.today().isoformat()}})
-    staging = root / f".{name}.staging"
-    shutil.rmtree(staging, ignore_errors=True)
-    staging.mkdir(parents=True)
-    for f in (*FILES, MANIFEST):
-        shutil.copy2(source / f, staging / f)
+        set_aside(target, root / keep_as, {"replaced_by": chain[0]["digest"], "replaced_on": date.today().isoformat(),
+                                           **({"label": keep_label} if keep_label else {})})
     shipped = {"name": name, "from_run": str(Path(run).resolve()), "on": date.today().isoformat()}
     if label:
         shipped["label"] = label
     if note:
         shipped["note"] = note
-    amend_manifest(staging, {"shipped": shipped, "lineage": chain})
-    CHECKPOINT.digest(staging)  # the copy is whole before it takes the name
-    staging.rename(target)
-    return target
-
-
-def _read(directory: Path) -> dict:
-    return json.loads((directory / MANIFEST).read_text())
+    return CHECKPOINT.install(source, target, {"shipped": shipped, "lineage": chain})
