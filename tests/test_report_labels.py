@@ -19,14 +19,15 @@ import pytest
 from seal.eval.store import ResultStore, TrialRow
 from seal.report import write_report
 from seal.report.data import ReportData
-from seal.report.labels import DEFAULTS, KnownVLA, display_name, shipped_vlas
+from seal.report.labels import DEFAULTS, KnownVLA, display_name, shipped_verifier, shipped_vlas
 from seal.report.paper import paper_method_for
 from seal.report.stats import paired_from_counts
 from seal.steer.method import MethodSpec, settings
 from seal.verify.options import OracleOptions
 
 HEX = re.compile(r"[0-9a-f]{6,}")
-VALUE_DIGEST, LEARNED_DIGEST = "0123456789ab", "fedcba987654"  # stand-ins for checkpoint digests
+VALUE_DIGEST = "0123456789ab"  # a stand-in for a checkpoint digest
+LEARNED_DIGEST = shipped_verifier()  # rows of "the learned verifier" are the shipped one's
 
 
 def _config_hash(config: dict) -> str:
@@ -87,6 +88,9 @@ def test_the_earlier_shipped_verifier_keeps_a_name_of_its_own():
     fourth = MethodSpec(policy="vla", verifier="learned:pad_labels").canonical()
     assert len({current["model"], earlier["model"], second["model"], third["model"], fourth["model"]}) == 5
     assert display_name(fourth) == "reasoning VLA + SEAL (learned verifier from pad-check labels)"
+    # a run that never shipped is named by its digest, never as the shipped one
+    run = {**current, "model": "910132eefae3", "threshold": 0.8}
+    assert display_name(run) == "reasoning VLA + SEAL (learned verifier 910132eefae3, threshold 0.8)"
 
 
 def test_a_stricter_verifier_threshold_is_a_method_of_its_own_and_says_so():

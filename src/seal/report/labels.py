@@ -93,6 +93,17 @@ def earlier_verifiers() -> dict[str, str]:
     return out
 
 
+def shipped_verifier() -> str | None:
+    """Weights digest of the shipped learned verifier (`learned`), None if it is missing or damaged."""
+    from seal.errors import InvalidInput
+    from seal.verify.learned import CHECKPOINT, DEFAULT_CHECKPOINT
+
+    try:
+        return CHECKPOINT.digest(DEFAULT_CHECKPOINT)
+    except (InvalidInput, OSError):
+        return None
+
+
 def shipped_values() -> dict[str, str]:
     """Weights digest -> shipped name of the package's V-GPS Q-functions, read from their manifests
     (no hashing; an unreadable manifest is skipped)."""
@@ -217,6 +228,8 @@ def _verifier_phrase(config: dict) -> str:
         earlier = earlier_verifiers().get(str(model))
         if earlier:
             return earlier
+        if str(model) != shipped_verifier():  # a run that never shipped: not to be read as the shipped one
+            return f"learned verifier {model}"
     name = VERIFIER_NAMES.get(verifier, verifier)
     # The oracle checks a pick with Held (`seal.verify.oracle`); a stored oracle configuration without
     # "grasp" ran before that check existed, with robosuite's pad check: say so.
