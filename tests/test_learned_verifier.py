@@ -258,7 +258,7 @@ def test_without_a_shipped_checkpoint_plain_learned_says_how_to_make_one(tmp_pat
 
 
 @pytest.mark.parametrize("name", ["learned", "learned:expert", "learned:vla_rounds", "learned:dagger_rounds",
-                                  "learned:pad_labels"])
+                                  "learned:pad_labels", "learned:held_labels"])
 def test_the_shipped_checkpoints_match_their_manifests_and_judge(data, name):
     import hashlib
 
@@ -270,7 +270,9 @@ def test_the_shipped_checkpoints_match_their_manifests_and_judge(data, name):
         blob = (directory / file).read_bytes()
         assert (len(blob), hashlib.sha256(blob).hexdigest()) == (entry["bytes"], entry["sha256"]), file
     assert manifest["files"]["model.safetensors"]["bytes"] <= 20e6
-    assert manifest["command"].startswith("seal train verifier ") and manifest["heldout_inits"]["n"] > 0
+    assert manifest["command"].startswith("seal train verifier ")
+    # a trained run's own held-out split, or (an average of runs) each ingredient's
+    assert all(run["heldout_inits"]["n"] > 0 for run in manifest.get("average_of", [manifest]))
     # the earlier one keeps its name in results stores; the shipped one names the policy its cases came from
     if name == "learned:expert":
         assert CHECKPOINT.digest(directory) == "8818a7a2714f"
@@ -283,12 +285,17 @@ def test_the_shipped_checkpoints_match_their_manifests_and_judge(data, name):
     elif name == "learned:pad_labels":  # shipped on 2026-12-05 until its cases were labelled with Held
         assert CHECKPOINT.digest(directory) == "91510e95b336"
         assert manifest["case_policies"]["init_from"]["digest"] == "c0646b399509"
+    elif name == "learned:held_labels":  # shipped on 2026-12-05 until the VLA it steered was re-shipped
+        assert CHECKPOINT.digest(directory) == "3ef801b0d635"
+        assert manifest["case_policies"]["init_from"]["digest"] == "91510e95b336"
+        assert manifest["shipped"]["label"] == "the round-2 VLA's rounds"
     else:
         assert directory == DEFAULT_CHECKPOINT
-        assert manifest["case_policies"]["init_from"]["digest"] == "91510e95b336"
-        # the cases of the VLA it steers (round 2), and task-level cases for the done check
-        assert {s["policy_ckpt_digest"] for s in manifest["case_policies"]["sources"]} >= {"563400068f48"}
-        assert "Held" in manifest["shipped"]["labels"]
+        # the average of two seeds of one fine-tune of the checkpoint it replaced
+        assert [run["digest"] for run in manifest["average_of"]] == ["910132eefae3", "e9ff26988fdc"]
+        # the cases of the VLA it steers (round 4) and of the one before, and task-level cases for the done check
+        assert {s["policy_ckpt_digest"] for s in manifest["case_policies"]["sources"]} >= {"563400068f48", "4edbeeb3b398"}
+        assert "Held" in manifest["shipped"]["labels"] and manifest["shipped"]["operating_point"] == 0.9
         assert manifest["shipped"]["held_out"]["task_level"]["n"] >= 100
         # its held-out figures on the documented protocol travel with it
         assert manifest["shipped"]["held_out"]["subplan_protocol"]["n"] >= 300

@@ -39,6 +39,7 @@ EXPERT_VERIFIER = SHIPPED_VERIFIER.parent / "expert"  # the first shipped one, `
 VLA_ROUNDS_VERIFIER = SHIPPED_VERIFIER.parent / "vla_rounds"  # the second, `learned:vla_rounds`
 DAGGER_ROUNDS_VERIFIER = SHIPPED_VERIFIER.parent / "dagger_rounds"  # the third, `learned:dagger_rounds`
 PAD_LABELS_VERIFIER = SHIPPED_VERIFIER.parent / "pad_labels"  # the fourth, `learned:pad_labels`
+HELD_LABELS_VERIFIER = SHIPPED_VERIFIER.parent / "held_labels"  # the fifth, `learned:held_labels`
 SHIPPED_VALUES = Path(__file__).resolve().parents[1] / "src/seal/value/checkpoints"  # V-GPS: l10_twin_rollouts default
 
 
@@ -52,7 +53,8 @@ def _shipped_digests() -> dict:
                for name, d in (("learned", SHIPPED_VERIFIER), ("learned:expert", EXPERT_VERIFIER),
                                ("learned:vla_rounds", VLA_ROUNDS_VERIFIER),
                                ("learned:dagger_rounds", DAGGER_ROUNDS_VERIFIER),
-                               ("learned:pad_labels", PAD_LABELS_VERIFIER))}
+                               ("learned:pad_labels", PAD_LABELS_VERIFIER),
+                               ("learned:held_labels", HELD_LABELS_VERIFIER))}
     value = {f"value:{name}": hashlib.sha1((SHIPPED_VALUES / name / "value.safetensors").read_bytes()
                                            + (SHIPPED_VALUES / name / "value.json").read_bytes()).hexdigest()[:12]
              for name in ("l10_demos", "l10_twin_rollouts")}
@@ -79,7 +81,7 @@ def test_config_hashes_of_plugins_are_kept(tmp_path):
     # way, so stores made with it keep finding their trials after the round-2 VLA and its twin shipped.
     assert _shipped_digests() == {"reason": "4edbeeb3b398", "twin": "9b6a737845d5", "reason_r0": "009dcdd7fb35",
                                   "twin_r0": "14bb7098169e", "reason_r2": "563400068f48", "twin_r3": "cd9f0d7bdb3c",
-                                  "learned": "3ef801b0d635",
+                                  "learned": "e6ff68f2135b", "learned:held_labels": "3ef801b0d635",
                                   "learned:expert": "8818a7a2714f", "learned:vla_rounds": "808648b1ea87",
                                   "learned:dagger_rounds": "c0646b399509", "learned:pad_labels": "91510e95b336",
                                   "value:l10_demos": "a353a1507bf5", "value:l10_twin_rollouts": "257c70543923"}

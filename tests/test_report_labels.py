@@ -88,6 +88,10 @@ def test_the_earlier_shipped_verifier_keeps_a_name_of_its_own():
     fourth = MethodSpec(policy="vla", verifier="learned:pad_labels").canonical()
     assert len({current["model"], earlier["model"], second["model"], third["model"], fourth["model"]}) == 5
     assert display_name(fourth) == "reasoning VLA + SEAL (learned verifier from pad-check labels)"
+    fifth = MethodSpec(policy="vla", verifier="learned:held_labels").canonical()  # named by its manifest's label
+    assert len({current["model"], earlier["model"], second["model"], third["model"], fourth["model"],
+                fifth["model"]}) == 6
+    assert display_name(fifth) == "reasoning VLA + SEAL (learned verifier from the round-2 VLA's rounds)"
     # a run that never shipped is named by its digest, never as the shipped one
     run = {**current, "model": "910132eefae3", "threshold": 0.8}
     assert display_name(run) == "reasoning VLA + SEAL (learned verifier 910132eefae3, threshold 0.8)"

@@ -43,7 +43,8 @@ DEFAULT_CHECKPOINT = Path(__file__).resolve().parent / "checkpoints" / "learned"
 # vla_rounds: it fine-tuned on the first reasoning VLA's own rounds (shipped 2026-12-04 morning);
 # dagger_rounds: that one with DAgger rounds 2-3 and task-level cases added (shipped 2026-12-04 to 12-05);
 # pad_labels: it fine-tuned, failures weighted, on the round-2 VLA's SEAL rounds, picks labelled by the pad check
-# (shipped 2026-12-05); later ones are set aside by `seal.verify.ship` with their label in their manifest.
+# (shipped 2026-12-05); later ones are set aside by `seal.verify.ship` with their label in their manifest
+# (held_labels: that recipe on the same rounds labelled by Held, shipped 2026-12-05 until round 4's VLA shipped).
 # Every directory beside the shipped one that holds a manifest is one (read once: the package's files).
 SHIPPED = {p.name: p for p in sorted(DEFAULT_CHECKPOINT.parent.glob("*/"))
            if p.name != DEFAULT_CHECKPOINT.name and not p.name.startswith(".") and (p / "manifest.json").is_file()}
