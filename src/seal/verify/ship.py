@@ -58,7 +58,7 @@ def ship(run: str | Path, *, keep_as: str, operating_point: float, held_out: dic
     if not held_out:
         raise InvalidInput("give the held-out bench results the ship rests on (name=BENCH.json)")
     run = Path(run)
-    CHECKPOINT.digest(run)  # refuses a damaged run before anything is read or moved
+    new_digest = CHECKPOINT.digest(run)  # refuses a damaged run before anything is read or moved
     records = {name: held_out_record(path, run) for name, path in held_out.items()}
     if not any(abs(r.get("threshold", -1) - operating_point) < 1e-9 for r in records.values()):
         measured = sorted({r.get("threshold") for r in records.values()}, key=str)
@@ -66,7 +66,6 @@ def ship(run: str | Path, *, keep_as: str, operating_point: float, held_out: dic
                            f"the figures that justify an operating point ship with it")
     root = Path(root)
     target = root / "learned"
-    new_digest = CHECKPOINT.digest(run)
     replaces = None
     if target.exists():
         replaces = CHECKPOINT.digest(target)
