@@ -138,9 +138,22 @@ def identity(directory: Path, *, kind: str, required: tuple[str, ...], files: tu
     verify(directory, kind=kind, required=required)
     if algorithm == "sha256" and len(files) == 1:
         return file_digests(directory / files[0])[0][:12]
+    paths = [(directory / name).resolve() for name in files]
+    return _joint_digest(algorithm, tuple((str(p), *_stamp(p)) for p in paths))
+
+
+def _stamp(path: Path) -> tuple[int, int, int]:
+    st = path.stat()
+    return st.st_size, st.st_ino, st.st_mtime_ns
+
+
+@lru_cache(maxsize=256)
+def _joint_digest(algorithm: str, files: tuple[tuple[str, int, int, int], ...]) -> str:
+    """One hash over several files' bytes in order, memoised while none of them changes (reports name
+    many rows by the same few checkpoints)."""
     h = hashlib.new(algorithm)
-    for name in files:
-        with open(directory / name, "rb") as f:
+    for path, *_ in files:
+        with open(path, "rb") as f:
             h.update(f.read())
     return h.hexdigest()[:12]
 

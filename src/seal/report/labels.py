@@ -76,10 +76,9 @@ def shipped_vlas() -> dict[str, KnownVLA]:
 def earlier_verifiers() -> dict[str, str]:
     """Weights digest -> name of the learned-verifier checkpoints shipped before the current one
     (`seal.verify.learned.SHIPPED`), so rows made with them do not read as the shipped verifier's."""
+    from seal.checkpoint import MANIFEST
     from seal.errors import InvalidInput
     from seal.verify.learned import CHECKPOINT, SHIPPED
-
-    from seal.checkpoint import MANIFEST
 
     out = {}
     for name, path in SHIPPED.items():
