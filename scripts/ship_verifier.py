@@ -1,10 +1,10 @@
 #!/usr/bin/env python
 """Ship a `seal train verifier` run as the package's learned verifier (maintainers' tool).
 
-    python scripts/ship_verifier.py ../runs/verifier/r7_plain_s0 --keep-as held_labels \\
-        --keep-label "the round-2 VLA's rounds" --operating-point 0.8 \\
-        --held-out subplan_protocol=../runs/verifier/r7_plain_s0/r4held_t0.8.json \\
-        --held-out task_level=../runs/verifier/r7_plain_s0/task_t0.8.json --why "..."
+    python scripts/ship_verifier.py ../runs/verifier/r7_plain_soup --keep-as held_labels \\
+        --keep-label "the round-2 VLA's rounds" --operating-point 0.9 \\
+        --held-out subplan_protocol=../runs/verifier/r7_plain_soup/r4held_t0.9.json \\
+        --held-out task_level=../runs/verifier/r7_plain_soup/task_t0.9.json --labels "..." --why "..."
 
 The checkpoint it replaces stays loadable as learned:<keep-as>; see seal.verify.ship.
 """
