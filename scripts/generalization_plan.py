@@ -10,7 +10,8 @@ TRIALS, COMP_TRIALS, METHODS, MAX_STEPS, VALUE_CKPT); flags override it.
 
 Per-trial cost, first match wins:
   1. rows of the same method configuration (config hash) in the same suite of the --costs database,
-  2. the same configuration in any suite of it,
+  2. the same configuration in other suites of it, scaled by how much dearer this suite's trials were than
+     those suites' for other configurations of the same method and verifier (when the database has any),
   3. a stored configuration with the same method, policy weights, K and verifier (e.g. V-GPS with
      another value checkpoint),
   4. the documented defaults below.
@@ -178,11 +179,40 @@ def _pick(rows: dict, kinds: dict, config_hash: str | None, kind: dict, suite: s
         return rows[config_hash, suite], f"db: this configuration, {suite}"
     same = [r for (h, _), rs in rows.items() if h == config_hash for r in rs]
     if same:
-        return same, "db: this configuration, other suites"
+        sources = sorted({s for (h, s) in rows if h == config_hash})
+        factor, n = _suite_factor(rows, kinds, config_hash, kind, suite, sources)
+        if factor is None:
+            return same, "db: this configuration, other suites"
+        return ([(w * factor, steps) for w, steps in same],
+                f"db: this configuration, other suites, x{factor:.2f} for {suite} "
+                f"(the ratio over {n} other configuration(s) of the method)")
     alike = [r for (h, _), rs in rows.items() if kinds.get(h) == kind for r in rs]
     if alike:
         return alike, "db: same method, policy, K and verifier, another configuration"
     return [], "default"
+
+
+def _suite_factor(rows: dict, kinds: dict, config_hash: str, kind: dict, suite: str,
+                  sources: list[str]) -> tuple[float | None, int]:
+    """How much dearer a trial of ``suite`` is than one of ``sources``, measured on other configurations of
+    the same method and verifier that ran both: (pooled ratio of mean wall times, configurations used),
+    or (None, 0) when none did. Out of distribution SEAL's rounds fail more often and re-sample: on
+    Lang-Object-Property round 2's SEAL trials took 3.8x their LIBERO-10 time, which a cost carried over
+    from LIBERO-10 alone would miss."""
+    def mean(h: str, suites: list[str]) -> float | None:
+        ws = [w for s in suites for w, _ in rows.get((h, s), [])]
+        return sum(ws) / len(ws) if ws else None
+
+    same_kind = {k: kind.get(k) for k in ("method", "verifier")}
+    there = here = 0.0
+    n = 0
+    for h in {h for (h, _) in rows if h != config_hash}:
+        if {k: kinds.get(h, {}).get(k) for k in same_kind} != same_kind:
+            continue
+        a, b = mean(h, [suite]), mean(h, sources)
+        if a is not None and b is not None:
+            there, here, n = there + a, here + b, n + 1
+    return (there / here, n) if n and here > 0 else (None, 0)
 
 
 def seconds_per_trial(name: str, rows: list, step_limit: int, max_steps: int | None) -> float:

@@ -134,3 +134,25 @@ def test_script_runs_one_trial_and_resumes(tmp_path):
     assert (vla["trials"], vla["done"], vla["to_run"]) == (1, 1, 0)
     assert vla["cost_source"].startswith("db:")
     print(f"first run {took:.1f} s")
+
+
+def test_a_cost_carried_to_another_suite_is_scaled_by_what_other_configurations_measured_there():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("generalization_plan", PLAN)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    seal = {"method": "seal", "verifier": "oracle"}
+    kinds = {"new": seal | {"policy_ckpt": "b"}, "old": seal | {"policy_ckpt": "a"},
+             "base": {"method": "base", "policy_ckpt": "a"}}
+    rows = {("new", "libero_10"): [(100.0, 300)],
+            ("old", "libero_10"): [(50.0, 300), (70.0, 300)], ("old", "visual_scene"): [(180.0, 500)],
+            ("base", "libero_10"): [(10.0, 520)], ("base", "visual_scene"): [(100.0, 520)]}  # another method: ignored
+    got, source = mod._pick(rows, kinds, "new", kinds["new"], "visual_scene")
+    assert got == [(300.0, 300)] and "x3.00 for visual_scene" in source and "1 other" in source
+    # measured in the suite itself: taken as it is
+    assert mod._pick(rows, kinds, "old", kinds["old"], "visual_scene") == ([(180.0, 500)],
+                                                                          "db: this configuration, visual_scene")
+    # no other configuration of the method ran the suite: the other suites' cost, unscaled
+    assert mod._pick(rows, kinds, "new", kinds["new"], "composition") == ([(100.0, 300)],
+                                                                         "db: this configuration, other suites")
