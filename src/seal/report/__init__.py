@@ -65,6 +65,7 @@ def write_report(db: str | Path, out_dir: str | Path, *, runs_dir: str | Path | 
     layouts = paper_layout.layout_sections(data, paper, paper_training)
     lifts = lift.lift_rows([lay for _, group in layouts for lay in group])
     shares = lift.share_rows(data)
+    same_starts = lift.same_start_rows(data)
 
     csvs = []
     for st in success:
@@ -75,6 +76,7 @@ def write_report(db: str | Path, out_dir: str | Path, *, runs_dir: str | Path | 
                        paper_layout.differences_csv([lay for _, group in layouts for lay in group])))
     csvs.append(_write(out / "csv" / "lift_by_suite.csv", lift.lift_csv(lifts)))
     csvs.append(_write(out / "csv" / "share_of_oracle_lift.csv", lift.share_csv(shares)))
+    csvs.append(_write(out / "csv" / "same_starts_other_words.csv", lift.same_start_csv(same_starts)))
     csvs.append(_write(out / "csv" / "runtime.csv", tables.runtime_csv(runtime)))
     csvs.append(_write(out / "csv" / "alignment.csv", tables.alignment_csv(alignment)))
     csvs.append(_write(out / "csv" / "endings.csv", tables.ending_csv(endings)))
@@ -91,7 +93,7 @@ def write_report(db: str | Path, out_dir: str | Path, *, runs_dir: str | Path | 
     sections = [("Success", [tables.success_display(st) for st in success]),
                 *[(title, [paper_layout.layout_display(lay) for lay in group]) for title, group in layouts],
                 ("Paired differences", [tables.paired_display(paired)]),
-                ("Lift", [lift.lift_display(lifts), lift.share_display(shares)]),
+                ("Lift", [lift.lift_display(lifts), lift.same_start_display(same_starts), lift.share_display(shares)]),
                 ("Alignment", [tables.alignment_display(alignment)]),
                 ("Endings", [tables.ending_display(endings), tables.completion_display(completions)]),
                 ("Failures", [causes.cause_display(failures), causes.pass_display(passes),

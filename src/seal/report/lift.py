@@ -5,6 +5,10 @@ Two questions the generalization tables exist to answer, each one table:
 - Is SEAL's lift out of distribution larger or smaller than in distribution? Per SEAL configuration
   and suite: SEAL minus its own base on the same trials, and that lift divided by the same pair's
   lift on LIBERO-10.
+- Does a method keep its success when only the instruction's words change? The language suites keep
+  LIBERO-10's scenes, init states and goals, so a trial there and the LIBERO-10 trial with the same
+  task and init state differ in the instruction (and the sampling seed, which `seal eval` derives from
+  the suite): their success is paired start by start.
 - How much of the oracle's lift does a verifier one can deploy keep? For a SEAL configuration with
   a verifier other than the oracle, and the same configuration with the oracle, on the trials all
   three (it, the oracle's, their shared base) ran: (verifier - base) / (oracle - base), with a
@@ -17,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from seal.report.data import MethodInfo, ReportData
+from seal.report.data import MethodInfo, ReportData, succeeded
 from seal.report.paper_layout import VERIFIER_KEYS, PaperLayout, base_of
 from seal.report.stats import PairedDifference, paired_difference
 from seal.report.tables import Table, num, to_csv
@@ -80,6 +84,69 @@ def lift_csv(rows: list[LiftRow]) -> str:
                   [[r.suite, r.seal.label, r.base.label, r.seal.config_hash, r.base.config_hash, r.lift.n,
                     num(100 * r.lift.diff), num(100 * r.lift.ci[0]), num(100 * r.lift.ci[1]),
                     "" if r.in_distribution is None else num(100 * r.in_distribution.diff),
+                    "" if r.ratio is None else num(r.ratio, 3)] for r in rows])
+
+
+# ---- the same starts in other words ------------------------------------------------------------
+# Suites that keep LIBERO-10's scenes and init states and change only the instruction (seal.sim.suites).
+SAME_STARTS = ("lang_rephrase", "lang_object_property")
+
+
+@dataclass
+class SameStartRow:
+    suite: str
+    method: MethodInfo
+    diff: PairedDifference  # this suite's success minus LIBERO-10's, on the same starts
+
+    @property
+    def rates(self) -> tuple[float, float]:
+        d = self.diff
+        return (d.both + d.only_a) / d.n, (d.both + d.only_b) / d.n
+
+    @property
+    def ratio(self) -> float | None:
+        ood, ind = self.rates
+        return ood / ind if ind > 0 else None
+
+
+def same_start_rows(data: ReportData) -> list[SameStartRow]:
+    """Per language suite and method configuration that also ran LIBERO-10: success on the starts both
+    ran (same task and init state), paired."""
+    reference = {(r.config_hash, r.task, r.init_index): succeeded(r)
+                 for r in data.rows if r.suite == IN_DISTRIBUTION}
+    out = []
+    for suite in (s for s in data.suites if s in SAME_STARTS):
+        for m in data.methods_in(suite):
+            pairs = [(succeeded(r), reference[key]) for r in data.rows
+                     if r.suite == suite and r.config_hash == m.config_hash
+                     and (key := (r.config_hash, r.task, r.init_index)) in reference]
+            if pairs:
+                out.append(SameStartRow(suite, m, paired_difference(pairs)))
+    return out
+
+
+def same_start_display(rows: list[SameStartRow]) -> Table:
+    headers = ["Suite", "Method", "paired starts", "success here", "on LIBERO-10", "difference (pp)", "95% CI (pp)",
+               "÷ LIBERO-10"]
+    body = []
+    for r in rows:
+        ood, ind = r.rates
+        ratio = r.ratio
+        body.append([r.suite, r.method.label, str(r.diff.n), f"{100 * ood:.1f}", f"{100 * ind:.1f}",
+                     f"{100 * r.diff.diff:+.1f}", f"[{100 * r.diff.ci[0]:+.1f}, {100 * r.diff.ci[1]:+.1f}]",
+                     "" if ratio is None else f"{ratio:.2f}x"])
+    notes = ["The language suites keep LIBERO-10's scenes, init states and goals: each trial here is paired with the "
+             "same method's LIBERO-10 trial of the same task and init state: the scene and goal are the same, the "
+             "instruction's words differ (and the policy's sampling seed, which is drawn per suite). Difference: success here minus on LIBERO-10, Newcombe's paired interval; "
+             "the ratio divides the two success rates (blank where LIBERO-10's is 0)."]
+    return Table("The same starts in other words", headers, body, set(), notes, left=2)
+
+
+def same_start_csv(rows: list[SameStartRow]) -> str:
+    return to_csv(["suite", "method", "config_hash", "paired_starts", "success_here", "success_libero_10",
+                   "diff_pp", "ci_low_pp", "ci_high_pp", "ratio"],
+                  [[r.suite, r.method.label, r.method.config_hash, r.diff.n, num(r.rates[0], 3), num(r.rates[1], 3),
+                    num(100 * r.diff.diff), num(100 * r.diff.ci[0]), num(100 * r.diff.ci[1]),
                     "" if r.ratio is None else num(r.ratio, 3)] for r in rows])
 
 
