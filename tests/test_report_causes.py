@@ -121,3 +121,32 @@ def test_a_carried_pick_is_no_miss_where_the_trace_has_the_held_audit(tmp_path):
     path = next(p for p in report.csv if p.name == "committed_passes.csv")
     (row,) = list(csv.DictReader(path.read_text().splitlines()))
     assert (row["committed_passes"], row["held"]) == ("2", "1")
+
+
+def test_candidates_are_counted_per_kind_of_the_subplan_they_were_sampled_for(tmp_path):
+    """Every judged candidate counts under the last sub-plan before it; a candidate that crashed before a
+    verdict, and a cut-off last line, count nowhere."""
+    db = tmp_path / "r.db"
+    path = tmp_path / "runs" / "t0" / "trace.jsonl"
+    path.parent.mkdir(parents=True)
+    verdicts = {"pick up the alphabet soup": [False] * 9 + [True], "place it in the basket": [True, False]}
+    events = []
+    for text, passed in verdicts.items():
+        events.append({"event": "subplan", "text": text})
+        events += [{"event": "candidate", "slot": i, "verdict": {"success": ok}} for i, ok in enumerate(passed)]
+    events.append({"event": "candidate", "slot": 2, "verdict": None, "error": "simulator crashed"})
+    path.write_text("".join(json.dumps(e) + "\n" for e in events) + '{"event": "candidate", "verd')
+    with ResultStore(db) as store:
+        store.register_method(SEAL.config_hash, SEAL.label, SEAL.canonical())
+        store.add(TrialRow(method=SEAL.label, config_hash=SEAL.config_hash, suite="libero_10", task=0, trial=0,
+                           init_index=0, seed=0, success=False, steps=100, wall_s=1.0, subplans=RIGHT,
+                           ended_by="step_limit", trace_path=str(path)))
+        store.add(TrialRow(method=SEAL.label, config_hash=SEAL.config_hash, suite="libero_10", task=0, trial=1,
+                           init_index=1, seed=1, success=False, steps=100, wall_s=1.0, subplans=RIGHT,
+                           ended_by="step_limit", trace_path=str(tmp_path / "gone" / "trace.jsonl")))
+    report = write_report(db, tmp_path / "out", episodes=False)
+    path = next(p for p in report.csv if p.name == "candidates_by_kind.csv")
+    rows = {r["kind"]: r for r in csv.DictReader(path.read_text().splitlines())}
+    assert {k: (r["candidates"], r["passed"]) for k, r in rows.items()} == {"pick": ("10", "1"), "place": ("2", "1")}
+    assert rows["pick"]["traced_trials"] == "1"  # the trial without a trace is left out
+    assert "| 1 | 2/12 = 0.17 | 1/10 = 0.10 | 1/2 = 0.50 |" in report.markdown.read_text()

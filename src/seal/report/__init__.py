@@ -62,6 +62,7 @@ def write_report(db: str | Path, out_dir: str | Path, *, runs_dir: str | Path | 
     completions = tables.completion_rows(data)
     failures = causes.cause_rows(data)
     passes = causes.pass_rows(data)
+    candidates = causes.candidate_rows(data)
     layouts = paper_layout.layout_sections(data, paper, paper_training)
     lifts = lift.lift_rows([lay for _, group in layouts for lay in group])
     shares = lift.share_rows(data)
@@ -84,6 +85,7 @@ def write_report(db: str | Path, out_dir: str | Path, *, runs_dir: str | Path | 
     csvs.append(_write(out / "csv" / "failure_causes.csv", causes.cause_csv(failures)))
     csvs.append(_write(out / "csv" / "committed_passes.csv", causes.pass_csv(passes)))
     csvs.append(_write(out / "csv" / "committed_passes_by_kind.csv", causes.pass_kind_csv(passes)))
+    csvs.append(_write(out / "csv" / "candidates_by_kind.csv", causes.candidate_csv(candidates)))
     csvs.append(_write(out / "csv" / "errors.csv", tables.error_csv(data)))
     csvs.append(_write(out / "csv" / "verifier_errors.csv", tables.verifier_csv(data)))
 
@@ -97,7 +99,7 @@ def write_report(db: str | Path, out_dir: str | Path, *, runs_dir: str | Path | 
                 ("Alignment", [tables.alignment_display(alignment)]),
                 ("Endings", [tables.ending_display(endings), tables.completion_display(completions)]),
                 ("Failures", [causes.cause_display(failures), causes.pass_display(passes),
-                              causes.pass_kind_display(passes)]),
+                              causes.pass_kind_display(passes), causes.candidate_display(candidates)]),
                 ("Runtime", [tables.runtime_display(runtime)]),
                 ("Errors", [tables.error_display(data), tables.verifier_display(data)])]
     md = _write(out / "report.md", _markdown(data, sections, plot_paths, out))

@@ -271,3 +271,84 @@ def pass_kind_csv(rows: list[PassRow]) -> str:
     return to_csv(["suite", "method", "config_hash", "kind", "committed_passes", "held"],
                   [[r.suite, r.method.label, r.method.config_hash, kind, passes, held]
                    for r in rows for kind, (passes, held) in r.by_kind.items()])
+
+
+# ---- the candidates SEAL sampled ---------------------------------------------------------------------
+@dataclass
+class CandidateRow:
+    suite: str
+    method: MethodInfo
+    trials: int  # trials with a trace
+    by_kind: dict  # sub-plan kind -> (candidates judged, passed)
+
+    @property
+    def totals(self) -> tuple[int, int]:
+        return sum(n for n, _ in self.by_kind.values()), sum(p for _, p in self.by_kind.values())
+
+
+def _candidates(data: ReportData, row: TrialRow) -> dict | None:
+    """Sub-plan kind -> (candidates with a verdict, passed) in one trial's trace; None: no trace."""
+    trace = data.resolve(row.trace_path)
+    if trace is None:
+        return None
+    out: dict = {}
+    kind = "other"
+    with open(trace) as f:
+        for line in f:
+            if '"candidate"' not in line and '"subplan"' not in line:
+                continue
+            try:
+                event = json.loads(line)
+            except ValueError:  # a line cut off by a killed run
+                continue
+            if event.get("event") == "subplan":
+                kind = subplan_kind(event.get("text") or "")
+            elif event.get("event") == "candidate" and isinstance(event.get("verdict"), dict):
+                n, p = out.get(kind, (0, 0))
+                out[kind] = (n + 1, p + (event["verdict"].get("success") is True))
+    return out
+
+
+def candidate_rows(data: ReportData) -> list[CandidateRow]:
+    """Per suite and SEAL configuration: of the candidates its verifier judged, how many passed, per kind
+    of sub-plan. With the oracle a pass is the sub-plan achieved by simulator truth, so the rate is how
+    often one sampled action sequence does what its own plan says: a round of K candidates finds none
+    with probability (1 - rate)^K."""
+    out = []
+    for suite in data.suites:
+        for m in data.methods_in(suite):
+            if m.method != "seal":
+                continue
+            traced = [c for c in (_candidates(data, r) for r in data.rows
+                                  if r.suite == suite and r.config_hash == m.config_hash) if c is not None]
+            by_kind: dict = {}
+            for c in traced:
+                for kind, (n, p) in c.items():
+                    a, b = by_kind.get(kind, (0, 0))
+                    by_kind[kind] = (a + n, b + p)
+            if by_kind:
+                out.append(CandidateRow(suite, m, len(traced), {k: by_kind[k] for k in KINDS if k in by_kind}))
+    return out
+
+
+def candidate_display(rows: list[CandidateRow]) -> Table:
+    kinds = [k for k in KINDS if any(k in r.by_kind for r in rows)]
+
+    def cell(n: int, p: int) -> str:
+        return f"{p}/{n} = {p / n:.2f}" if n else "-"
+
+    body = [[r.suite, r.method.label, str(r.trials), cell(*r.totals)]
+            + [cell(*r.by_kind.get(k, (0, 0))) for k in kinds] for r in rows]
+    notes = ["Passed / judged candidates, over every round of every traced trial, in all and per kind of sub-plan "
+             "(the sub-plan's first verb). With the oracle a pass is the sub-plan achieved by simulator truth: the "
+             "rate is how often one action sequence sampled by the policy does what its own plan says, and a round "
+             "of K = 10 finds none with probability (1 - rate)^10. With another verifier it is that verifier's "
+             "acceptance rate. Rounds re-sampled after a failed round count again, so hard sub-plans weigh more."]
+    return Table("The candidates SEAL sampled: how many passed", ["Suite", "Method", "traced trials", "all"] + kinds,
+                 body, set(), notes, left=2)
+
+
+def candidate_csv(rows: list[CandidateRow]) -> str:
+    return to_csv(["suite", "method", "config_hash", "traced_trials", "kind", "candidates", "passed"],
+                  [[r.suite, r.method.label, r.method.config_hash, r.trials, kind, n, p]
+                   for r in rows for kind, (n, p) in r.by_kind.items()])
