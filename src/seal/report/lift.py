@@ -1,6 +1,6 @@
 """SEAL's lift compared across suites and across verifiers.
 
-Two questions the generalization tables exist to answer, each one table:
+Three questions the generalization tables exist to answer, each one table:
 
 - Is SEAL's lift out of distribution larger or smaller than in distribution? Per SEAL configuration
   and suite: SEAL minus its own base on the same trials, and that lift divided by the same pair's
@@ -136,9 +136,10 @@ def same_start_display(rows: list[SameStartRow]) -> Table:
                      f"{100 * r.diff.diff:+.1f}", f"[{100 * r.diff.ci[0]:+.1f}, {100 * r.diff.ci[1]:+.1f}]",
                      "" if ratio is None else f"{ratio:.2f}x"])
     notes = ["The language suites keep LIBERO-10's scenes, init states and goals: each trial here is paired with the "
-             "same method's LIBERO-10 trial of the same task and init state: the scene and goal are the same, the "
-             "instruction's words differ (and the policy's sampling seed, which is drawn per suite). Difference: success here minus on LIBERO-10, Newcombe's paired interval; "
-             "the ratio divides the two success rates (blank where LIBERO-10's is 0)."]
+             "same method's LIBERO-10 trial of the same task and init state, so the scene and goal are the same and "
+             "the instruction's words differ (and the policy's sampling seed, which is drawn per suite). Difference: "
+             "success here minus on LIBERO-10, Newcombe's paired interval; the ratio divides the two success rates "
+             "(blank where LIBERO-10's is 0)."]
     return Table("The same starts in other words", headers, body, set(), notes, left=2)
 
 
