@@ -81,27 +81,35 @@ class Commit:
     kind: str  # pick / place / open / close / turn / other, from the sub-plan's text
 
 
-def _commits(data: ReportData, row: TrialRow) -> list[Commit] | None:
-    """Every commit in the trial's trace, with the kind of sub-plan it was made for (the trace's last
-    ``subplan`` event before it). None: no trace on disk."""
-    trace = data.resolve(row.trace_path)
-    if trace is None:
-        return None
-    out, subplan = [], ""
+def _trace_events(trace, name: str):
+    """(the sub-plan in force, event) for each ``name`` event of a trace, in order: the sub-plan is the text
+    of the trace's last ``subplan`` event before it ("" before the first). A line cut off by a killed run is
+    skipped."""
+    subplan = ""
     with open(trace) as f:
         for line in f:
-            if '"commit"' not in line and '"subplan"' not in line:
+            if f'"{name}"' not in line and '"subplan"' not in line:
                 continue
             try:
                 event = json.loads(line)
-            except ValueError:  # a line cut off by a killed run
+            except ValueError:
                 continue
             if event.get("event") == "subplan":
                 subplan = event.get("text") or ""
-            elif event.get("event") == "commit":
-                # the Held audit where the trace has it (a carried object is picked); older traces: the pad check
-                held = event["aligned_held"] if "aligned_held" in event else event.get("aligned")
-                out.append(Commit((event.get("verdict") or {}).get("success") is True, held, subplan_kind(subplan)))
+            elif event.get("event") == name:
+                yield subplan, event
+
+
+def _commits(data: ReportData, row: TrialRow) -> list[Commit] | None:
+    """Every commit in the trial's trace, with the kind of sub-plan it was made for. None: no trace on disk."""
+    trace = data.resolve(row.trace_path)
+    if trace is None:
+        return None
+    out = []
+    for subplan, event in _trace_events(trace, "commit"):
+        # the Held audit where the trace has it (a carried object is picked); older traces: the pad check
+        held = event["aligned_held"] if "aligned_held" in event else event.get("aligned")
+        out.append(Commit((event.get("verdict") or {}).get("success") is True, held, subplan_kind(subplan)))
     return out
 
 
@@ -292,20 +300,10 @@ def _candidates(data: ReportData, row: TrialRow) -> dict | None:
     if trace is None:
         return None
     out: dict = {}
-    kind = "other"
-    with open(trace) as f:
-        for line in f:
-            if '"candidate"' not in line and '"subplan"' not in line:
-                continue
-            try:
-                event = json.loads(line)
-            except ValueError:  # a line cut off by a killed run
-                continue
-            if event.get("event") == "subplan":
-                kind = subplan_kind(event.get("text") or "")
-            elif event.get("event") == "candidate" and isinstance(event.get("verdict"), dict):
-                n, p = out.get(kind, (0, 0))
-                out[kind] = (n + 1, p + (event["verdict"].get("success") is True))
+    for subplan, event in _trace_events(trace, "candidate"):
+        if isinstance(verdict := event.get("verdict"), dict):
+            n, p = out.get(kind := subplan_kind(subplan), (0, 0))
+            out[kind] = (n + 1, p + (verdict.get("success") is True))
     return out
 
 
