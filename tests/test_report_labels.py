@@ -347,17 +347,23 @@ def test_lift_by_suite_and_the_learned_verifiers_share_of_the_oracles(tmp_path):
     assert abs(float(shares["all"]["share"]) - 4 / 6) < 1e-3 and shares["all"]["trials"] == "16"
     assert float(shares["libero_10"]["ci_low"]) <= 0.6 <= float(shares["libero_10"]["ci_high"])
     assert "A verifier's share of the oracle's lift" in md
-    # The same starts in other words: Lang-Rephrase's trial (task, t) against LIBERO-10's, per method.
+    # The same starts, one thing changed: Lang-Rephrase's trial (task, t) against LIBERO-10's, per method.
     # Oracle: both on 2 starts, LIBERO-10 only on 4 -> 25% vs 75%, -50 pp, 0.33x; the learned verifier
     # solves one start only in other words (task 1, trial 3) -> 25% vs 50%, 0.5x.
-    same = {r["method"]: r for r in csv.DictReader(by_name["same_starts_other_words.csv"].read_text().splitlines())}
-    assert {r["suite"] for r in same.values()} == {"lang_rephrase"}
+    same = {r["method"]: r for r in csv.DictReader(by_name["same_starts.csv"].read_text().splitlines())}
+    assert {(r["suite"], r["what_differs"]) for r in same.values()} == {("lang_rephrase", "words")}
     oracle = same[ORACLE]
     assert (oracle["paired_starts"], oracle["success_here"], oracle["success_libero_10"]) == ("8", "0.25", "0.75")
     assert float(oracle["diff_pp"]) == -50.0 and float(oracle["ratio"]) == 0.333
     assert float(oracle["ci_low_pp"]) < -50.0 < float(oracle["ci_high_pp"]) < 0
     assert float(same[LEARNED]["ratio"]) == 0.5 and float(same[LEARNED]["diff_pp"]) == -25.0
-    assert "The same starts in other words" in md
+    assert "The same starts, one thing changed" in md
+    # which suites keep LIBERO-10's starts is read from their task specs: the view suite does, the scene edits
+    # and the new goals do not
+    from seal.report.lift import same_start_change
+
+    assert [same_start_change(s, 3) for s in ("lang_object_property", "visual_viewpoint", "visual_scene",
+                                              "composition", "libero_10")] == ["words", "view", None, None, None]
     # the bootstrap: a verifier that always agrees with the oracle keeps all of its lift, exactly
     x = [(o, o, b) for o, b in [(1, 0)] * 6 + [(1, 1)] * 2 + [(0, 0)] * 4]
     assert share_of_lift(x) == (1.0, (1.0, 1.0))

@@ -77,7 +77,7 @@ def write_report(db: str | Path, out_dir: str | Path, *, runs_dir: str | Path | 
                        paper_layout.differences_csv([lay for _, group in layouts for lay in group])))
     csvs.append(_write(out / "csv" / "lift_by_suite.csv", lift.lift_csv(lifts)))
     csvs.append(_write(out / "csv" / "share_of_oracle_lift.csv", lift.share_csv(shares)))
-    csvs.append(_write(out / "csv" / "same_starts_other_words.csv", lift.same_start_csv(same_starts)))
+    csvs.append(_write(out / "csv" / "same_starts.csv", lift.same_start_csv(same_starts)))
     csvs.append(_write(out / "csv" / "runtime.csv", tables.runtime_csv(runtime)))
     csvs.append(_write(out / "csv" / "alignment.csv", tables.alignment_csv(alignment)))
     csvs.append(_write(out / "csv" / "endings.csv", tables.ending_csv(endings)))

@@ -5,10 +5,11 @@ Three questions the generalization tables exist to answer, each one table:
 - Is SEAL's lift out of distribution larger or smaller than in distribution? Per SEAL configuration
   and suite: SEAL minus its own base on the same trials, and that lift divided by the same pair's
   lift on LIBERO-10.
-- Does a method keep its success when only the instruction's words change? The language suites keep
-  LIBERO-10's scenes, init states and goals, so a trial there and the LIBERO-10 trial with the same
-  task and init state differ in the instruction (and the sampling seed, which `seal eval` derives from
-  the suite): their success is paired start by start.
+- Does a method keep its success when one thing changes and the start does not? Lang-Rephrase and
+  Lang-Object-Property (the words) and Visual-Viewpoint (the view) keep LIBERO-10's problem files and
+  init states, so a trial there and the LIBERO-10 trial with the same task and init state differ in that
+  one thing (and the sampling seed, which `seal eval` derives from the suite): their success is paired
+  start by start.
 - How much of the oracle's lift does a verifier one can deploy keep? For a SEAL configuration with
   a verifier other than the oracle, and the same configuration with the oracle, on the trials all
   three (it, the oracle's, their shared base) ran: (verifier - base) / (oracle - base), with a
@@ -18,9 +19,11 @@ Three questions the generalization tables exist to answer, each one table:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cache
 
 import numpy as np
 
+from seal.errors import InvalidInput
 from seal.report.data import MethodInfo, ReportData, succeeded
 from seal.report.paper_layout import VERIFIER_KEYS, PaperLayout, base_of
 from seal.report.stats import PairedDifference, paired_difference
@@ -87,15 +90,34 @@ def lift_csv(rows: list[LiftRow]) -> str:
                     "" if r.ratio is None else num(r.ratio, 3)] for r in rows])
 
 
-# ---- the same starts in other words ------------------------------------------------------------
-# Suites that keep LIBERO-10's scenes and init states and change only the instruction (seal.sim.suites).
-SAME_STARTS = ("lang_rephrase", "lang_object_property")
+# ---- the same starts, one thing changed -----------------------------------------------------------
+@cache
+def same_start_change(suite: str, task: int) -> str | None:
+    """What a derived suite's task changes while keeping its LIBERO-10 task's problem file and init states
+    ("words": the instruction; "view": the background and camera), or None where the starts differ
+    (another scene, another goal) or the suite is LIBERO-10 itself."""
+    from seal.sim.suites import get_task
+
+    if suite == IN_DISTRIBUTION:
+        return None
+    try:
+        spec, base = get_task(suite, task), get_task(IN_DISTRIBUTION, task)
+    except InvalidInput:
+        return None
+    if (spec.base_key != base.key or spec.bddl_path != base.bddl_path
+            or spec.init_states_path != base.init_states_path):
+        return None
+    changed = [what for what, differs in (("words", spec.instruction != base.instruction),
+                                          ("view", (spec.background, spec.camera) != (base.background, base.camera)))
+               if differs]
+    return " and ".join(changed) or None
 
 
 @dataclass
 class SameStartRow:
     suite: str
     method: MethodInfo
+    change: str  # what differs from LIBERO-10 on these starts
     diff: PairedDifference  # this suite's success minus LIBERO-10's, on the same starts
 
     @property
@@ -110,44 +132,49 @@ class SameStartRow:
 
 
 def same_start_rows(data: ReportData) -> list[SameStartRow]:
-    """Per language suite and method configuration that also ran LIBERO-10: success on the starts both
-    ran (same task and init state), paired."""
+    """Per derived suite whose tasks keep LIBERO-10's starts, and per method configuration that also ran
+    LIBERO-10: success on the starts both ran (same task and init state), paired."""
     reference = {(r.config_hash, r.task, r.init_index): succeeded(r)
                  for r in data.rows if r.suite == IN_DISTRIBUTION}
     out = []
-    for suite in (s for s in data.suites if s in SAME_STARTS):
+    for suite in data.suites:
+        changes = {same_start_change(suite, t) for t in data.tasks(suite)}
+        if len(changes) != 1 or None in changes:  # some task's starts differ, or tasks change different things
+            continue
+        (change,) = changes
         for m in data.methods_in(suite):
             pairs = [(succeeded(r), reference[key]) for r in data.rows
                      if r.suite == suite and r.config_hash == m.config_hash
                      and (key := (r.config_hash, r.task, r.init_index)) in reference]
             if pairs:
-                out.append(SameStartRow(suite, m, paired_difference(pairs)))
+                out.append(SameStartRow(suite, m, change, paired_difference(pairs)))
     return out
 
 
 def same_start_display(rows: list[SameStartRow]) -> Table:
-    headers = ["Suite", "Method", "paired starts", "success here", "on LIBERO-10", "difference (pp)", "95% CI (pp)",
-               "÷ LIBERO-10"]
+    headers = ["Suite", "what differs", "Method", "paired starts", "success here", "on LIBERO-10", "difference (pp)",
+               "95% CI (pp)", "÷ LIBERO-10"]
     body = []
     for r in rows:
         ood, ind = r.rates
         ratio = r.ratio
-        body.append([r.suite, r.method.label, str(r.diff.n), f"{100 * ood:.1f}", f"{100 * ind:.1f}",
+        body.append([r.suite, r.change, r.method.label, str(r.diff.n), f"{100 * ood:.1f}", f"{100 * ind:.1f}",
                      f"{100 * r.diff.diff:+.1f}", f"[{100 * r.diff.ci[0]:+.1f}, {100 * r.diff.ci[1]:+.1f}]",
                      "" if ratio is None else f"{ratio:.2f}x"])
-    notes = ["The language suites keep LIBERO-10's scenes, init states and goals: each trial here is paired with the "
-             "same method's LIBERO-10 trial of the same task and init state, so the scene and goal are the same and "
-             "the instruction's words differ (and the policy's sampling seed, which is drawn per suite). Difference: "
-             "success here minus on LIBERO-10, Newcombe's paired interval; the ratio divides the two success rates "
-             "(blank where LIBERO-10's is 0)."]
-    return Table("The same starts in other words", headers, body, set(), notes, left=2)
+    notes = ["Suites whose tasks keep LIBERO-10's problem files and init states (Lang-Rephrase and "
+             "Lang-Object-Property change the instruction's words, Visual-Viewpoint the background and camera): each "
+             "trial is paired with the same method's LIBERO-10 trial of the same task and init state, so only that "
+             "one thing differs (and the policy's sampling seed, which is drawn per suite). Difference: success here "
+             "minus on LIBERO-10, Newcombe's paired interval; the ratio divides the two success rates (blank where "
+             "LIBERO-10's is 0)."]
+    return Table("The same starts, one thing changed", headers, body, set(), notes, left=3)
 
 
 def same_start_csv(rows: list[SameStartRow]) -> str:
-    return to_csv(["suite", "method", "config_hash", "paired_starts", "success_here", "success_libero_10",
-                   "diff_pp", "ci_low_pp", "ci_high_pp", "ratio"],
-                  [[r.suite, r.method.label, r.method.config_hash, r.diff.n, num(r.rates[0], 3), num(r.rates[1], 3),
-                    num(100 * r.diff.diff), num(100 * r.diff.ci[0]), num(100 * r.diff.ci[1]),
+    return to_csv(["suite", "what_differs", "method", "config_hash", "paired_starts", "success_here",
+                   "success_libero_10", "diff_pp", "ci_low_pp", "ci_high_pp", "ratio"],
+                  [[r.suite, r.change, r.method.label, r.method.config_hash, r.diff.n, num(r.rates[0], 3),
+                    num(r.rates[1], 3), num(100 * r.diff.diff), num(100 * r.diff.ci[0]), num(100 * r.diff.ci[1]),
                     "" if r.ratio is None else num(r.ratio, 3)] for r in rows])
 
 
