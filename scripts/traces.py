@@ -18,28 +18,24 @@ nothing; an archive is never rewritten, so a committed one stays as it was.
 from __future__ import annotations
 
 import argparse
-import json
 import io
+import json
 import sqlite3
 import sys
 import tarfile
 import time
 from pathlib import Path
 
-TAIL = 5  # suite / task / method-hash / trialNNN / trace.jsonl
+from seal.report.data import TRIAL_FILE_PARTS, default_runs_dir
 
 
 def archive_dir(db: Path) -> Path:
     return db.with_name(db.stem + "_traces")
 
 
-def default_runs(db: Path) -> Path:
-    return db.with_name(db.stem + "_runs")
-
-
 def member_name(stored: str) -> str | None:
     parts = Path(stored).parts
-    return "/".join(parts[-TAIL:]) if len(parts) >= TAIL else None
+    return "/".join(parts[-TRIAL_FILE_PARTS:]) if len(parts) >= TRIAL_FILE_PARTS else None
 
 
 def archived(where: Path) -> set[str]:
@@ -115,7 +111,7 @@ def main() -> int:
                    help="the run's trial directory (default: <db without .db>_runs, where `seal report` looks)")
     p.add_argument("--archives", type=Path, default=None, help="archive directory (default: <db without .db>_traces)")
     args = p.parse_args()
-    runs = args.runs or default_runs(args.db)
+    runs = args.runs or default_runs_dir(args.db)
     where = args.archives or archive_dir(args.db)
     result = pack(args.db, runs, where) if args.action == "pack" else unpack(where, runs)
 

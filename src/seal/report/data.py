@@ -29,6 +29,9 @@ SUITE_ORDER = ("libero_10", "lang_rephrase", "lang_object_property", "visual_sce
 METHOD_ORDER = ("base", "random", "value", "seal")
 # The visual suites change the scene, not the words: their instructions are LIBERO-10's.
 INSTRUCTIONS_FROM = {"visual_scene": "libero_10", "visual_viewpoint": "libero_10"}
+# A stored trial file's path ends in suite/task/method-hash/trialNNN/<file>: the part that stays when the
+# run directory moves.
+TRIAL_FILE_PARTS = 5
 
 
 @dataclass(frozen=True)
@@ -107,7 +110,7 @@ class ReportData:
                 raise InvalidInput(f"no trials of suite(s) {', '.join(unknown)} in {self.db_path}; "
                                    f"it holds: {', '.join(stored)}")
             self.rows = [r for r in self.rows if r.suite in suites]
-        self.runs_dir = Path(runs_dir) if runs_dir else Path(str(self.db_path.with_suffix("")) + "_runs")
+        self.runs_dir = Path(runs_dir) if runs_dir else default_runs_dir(self.db_path)
         self.methods = _method_list(self.rows, registered)
         if methods:
             keep = set()
@@ -218,12 +221,17 @@ class ReportData:
         if path.exists():
             return path
         parts = path.parts
-        for tail in (5, 6):  # trace.jsonl / episode.mp4 (5 parts), grids/<png> (6 parts)
+        for tail in (TRIAL_FILE_PARTS, TRIAL_FILE_PARTS + 1):  # trace.jsonl / episode.mp4, grids/<png>
             if len(parts) >= tail:
                 moved = self.runs_dir.joinpath(*parts[-tail:])
                 if moved.exists():
                     return moved
         return None
+
+
+def default_runs_dir(db: str | Path) -> Path:
+    """Where a results database's trial files are looked for when their stored paths are gone."""
+    return Path(str(Path(db).with_suffix("")) + "_runs")
 
 
 def _last_event(trace: Path) -> dict:
