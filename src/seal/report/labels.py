@@ -211,6 +211,8 @@ def _steering_notes(config: dict) -> list[str]:
         # (`seal.policies.base.Reasoning.position`), which misjudges "it" after a garbled done list
         if config.get("subplan_ref", "count") == "count":
             notes.append("repeats by count")
+        if config.get("miss_score", "zero") == "graded":  # the oracle ranks misses for the fallback
+            notes.append("graded fallback")
     if method == "value" and (q := _value_phrase(config)):
         notes.append(q)
     if config.get("value_goal", DEFAULTS["value_goal"]) != DEFAULTS["value_goal"]:
@@ -262,7 +264,8 @@ def _setting_notes(config: dict, vlas: dict[str, KnownVLA]) -> list[str]:
 # Settings the functions above put into words (or deliberately leave out).
 _NAMED = {"knobs", "render", "mode", "mismatch", "subplan_budget", "planner", "planner_model", "annotations", "prompt",
           "k", "rounds", "verifier", "model", "false_positive", "false_negative", "pick", "verify_order",
-          "check_every", "done_check", "value_goal", "threshold", "grasp", "grip", "noise_scale", "subplan_ref"}
+          "check_every", "done_check", "value_goal", "threshold", "grasp", "grip", "noise_scale", "subplan_ref",
+          "miss_score"}
 
 
 def _show(value) -> str:

@@ -85,6 +85,23 @@ class Articulation:
     geoms: tuple[Box, ...] = ()  # the moving part's collision geoms (handles are among them)
 
 
+def open_sign(a: Articulation) -> float:
+    """+1 if opening increases qpos (the range's far end from 0 is positive), else -1."""
+    lo, hi = a.range
+    return 1.0 if abs(hi) >= abs(lo) else -1.0
+
+
+def openness(a: Articulation) -> float:
+    """How far from closed (metres for a slide, radians for a hinge); 0 when closed."""
+    return a.qpos * open_sign(a)
+
+
+def open_fraction(a: Articulation) -> float:
+    """How far open, as a fraction of the joint's travel from closed (0) to its far limit (1)."""
+    far = max(abs(float(a.range[0])), abs(float(a.range[1])))
+    return float(np.clip(openness(a) / far, 0.0, 1.0)) if far > 0 else 0.0
+
+
 @dataclass
 class SceneState:
     eef_pos: np.ndarray  # (3,) end-effector site, world frame

@@ -15,13 +15,13 @@ from __future__ import annotations
 from dataclasses import asdict
 
 from seal.registry import Plugin, Registry
-from seal.verify.options import GRASP_CHECKS, LearnedOptions, OracleOptions, VerifierOptions
+from seal.verify.options import GRASP_CHECKS, MISS_SCORES, LearnedOptions, OracleOptions, VerifierOptions
 
 
-def _oracle(*, grasp: str = GRASP_CHECKS[0], **_):
+def _oracle(*, grasp: str = GRASP_CHECKS[0], miss_score: str = MISS_SCORES[0], **_):
     from seal.verify.oracle import OracleVerifier
 
-    return OracleVerifier(grasp=grasp)
+    return OracleVerifier(grasp=grasp, miss_score=miss_score)
 
 
 def _vlm(backend: str):

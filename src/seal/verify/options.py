@@ -14,6 +14,8 @@ from seal.errors import InvalidInput
 from seal.options import RATE, Options, option
 from seal.sim.goals import GRASP_CHECKS  # re-exported: the oracle's pick check is one of these
 
+MISS_SCORES = ("zero", "graded")  # the oracle's score for a failed sub-plan (seal.verify.oracle)
+
 
 def _threshold(text: str) -> float:
     """A ``threshold=`` in a ``--methods`` item: a probability, or an error that names it."""
@@ -44,6 +46,11 @@ class OracleOptions(VerifierOptions):
     grasp: str = option("fingers", "oracle: a pick passes when each finger touches the object (fingers) "
                                    "or only when both finger pads do (pads, robosuite's check)",
                         choices=GRASP_CHECKS, legacy="pads", strict=True)
+    # Added after results existed: at its default a configuration keeps its hash.
+    miss_score: str = option("zero", "oracle: what a failed candidate scores, which SEAL's fallback ranks when no "
+                                     "candidate passes: zero (all misses alike, the first is committed) or graded "
+                                     "(how close its end state came: hand to object, object to region, joint travel)",
+                             choices=MISS_SCORES, later=True, strict=True)
 
 
 @dataclass(frozen=True)

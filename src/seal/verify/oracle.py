@@ -26,9 +26,13 @@ import re
 import time
 from dataclasses import dataclass
 
+import numpy as np
+
 from seal.errors import InvalidInput
 from seal.sim.lexicon import NAMES, category
 from seal.sim.goals import GRASP_CHECKS, GoalAtom
+from seal.sim.scene import SceneState, open_fraction
+from seal.verify.options import MISS_SCORES
 from seal.verify.base import Verdict, VerifyRequest
 
 # Words people (and VLAs) use beyond the expert's own lexicon, per object category.
@@ -230,17 +234,52 @@ def _last_picked(subplan: str, plans: tuple[str, ...], objects: list[str], index
     return None
 
 
+# A miss scores how close its end state came, below any pass: SEAL's fallback ranks misses by it.
+_MISS_CEILING = 0.99
+_REACH_M = 0.05  # a hand this far from the object is e^-1 of the way to holding it
+_PLACE_M = 0.10  # an object this far from its region is e^-1 of the way there
+
+
+def atom_progress(atom: str, scene: SceneState) -> float:
+    """How far the end state has come toward one goal atom, in [0, 1], from the privileged scene:
+    a pick by the hand's distance to the object, a place by the object's distance to its region or
+    support, an open/close/turn by the joint's fraction of its travel (LIBERO's fixtures are closed
+    and off at 0, `seal.sim.scene.Articulation`). Names the scene lacks give 0."""
+    a = GoalAtom.parse(atom)
+    if a.predicate in ("held", "grasped"):
+        body = scene.bodies.get(a.subject)
+        if body is None:
+            return 0.0
+        gap = np.linalg.norm(np.clip(scene.eef_pos, body.lo, body.hi) - scene.eef_pos)  # to its box, not its origin
+        return float(np.exp(-gap / _REACH_M))
+    if a.predicate in ("in", "on"):
+        body, target = scene.bodies.get(a.subject), a.args[1]
+        where = scene.sites[target].pos if target in scene.sites else (
+            (scene.bodies[target].lo + scene.bodies[target].hi) / 2 if target in scene.bodies else None)
+        if body is None or where is None:
+            return 0.0
+        return float(np.exp(-np.linalg.norm((body.lo + body.hi) / 2 - where) / _PLACE_M))
+    joints = [scene.articulations[j] for j in scene.joints_of.get(a.subject, ()) if j in scene.articulations]
+    if not joints:
+        return 0.0
+    opened = float(np.mean([open_fraction(j) for j in joints]))
+    return opened if a.predicate in ("open", "turnon") else 1.0 - opened
+
+
 class OracleVerifier:
     """Ground truth from the simulator, reached through the sub-plan's words."""
 
     name = "oracle"
     needs_images = False
     grasp = GRASP_CHECKS[0]  # also for subclasses that set up their own __init__
+    miss_score = MISS_SCORES[0]
 
-    def __init__(self, grasp: str = GRASP_CHECKS[0]) -> None:
+    def __init__(self, grasp: str = GRASP_CHECKS[0], miss_score: str = MISS_SCORES[0]) -> None:
         if grasp not in GRASP_CHECKS:
             raise InvalidInput(f"unknown grasp check {grasp!r}; valid: {', '.join(GRASP_CHECKS)}")
-        self.grasp = grasp
+        if miss_score not in MISS_SCORES:
+            raise InvalidInput(f"unknown miss score {miss_score!r}; valid: {', '.join(MISS_SCORES)}")
+        self.grasp, self.miss_score = grasp, miss_score
 
     def _atoms(self, g: Grounding) -> list[str]:
         return checked_atoms(g, self.grasp)
@@ -277,7 +316,15 @@ class OracleVerifier:
         ok = all(holds.values())
         rationale = "; ".join(f"{a} is {'true' if v else 'false'}" for a, v in holds.items())
         return Verdict(ok, rationale, latency_s=time.perf_counter() - start, raw=rationale,
-                       score=1.0 if ok else 0.0, extra={"atoms": list(holds)})
+                       score=1.0 if ok else self._miss(holds, scene), extra={"atoms": list(holds)})
+
+    def _miss(self, holds: dict[str, bool], scene: SceneState) -> float:
+        """A failed sub-plan's score: 0, or the mean progress over its atoms (a met atom counts 1),
+        kept under every pass."""
+        if self.miss_score == "zero":
+            return 0.0
+        done = [1.0 if v else atom_progress(a, scene) for a, v in holds.items()]
+        return _MISS_CEILING * float(np.mean(done))
 
 
 def _recorded(atom: str, facts: dict) -> str:

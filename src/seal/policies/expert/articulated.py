@@ -34,11 +34,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from seal.policies.expert.motion import (DOWN, UP, act, act_pose, flat, hand_tilt, joint_of, misalign, open_sign, openness, pose_error,
+from seal.policies.expert.motion import (DOWN, UP, act, act_pose, flat, hand_tilt, joint_of, misalign, pose_error,
                                          unit, wrist_side, yaw_toward)
 from seal.policies.expert.skills import CLOSE, OPEN, OPEN_WIDTH, Step
 from seal.sim.goals import GoalAtom
-from seal.sim.scene import Articulation, Box, SceneState
+from seal.sim.scene import Articulation, Box, SceneState, open_sign, openness
 
 # Gripper geometry (Panda, measured in the eef site's frame).
 FINGER_HALF = 0.012  # half thickness of the closed fingers across the finger axis (+ margin)

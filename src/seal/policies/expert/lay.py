@@ -21,10 +21,10 @@ from __future__ import annotations
 import numpy as np
 
 from seal.policies.expert.articulated import AWAY
-from seal.policies.expert.motion import (DOWN, TILT_GAIN, act, flat, hand_frame, horizontal_frame, joint_of, open_sign,
-                                         openness, path_top, rotvec, unit)
+from seal.policies.expert.motion import (DOWN, TILT_GAIN, act, flat, hand_frame, horizontal_frame, joint_of,
+                                         path_top, rotvec, unit)
 from seal.policies.expert.skills import CLOSE, HAND_HALF, OPEN, OPEN_WIDTH, Step, in_hand, is_tall
-from seal.sim.scene import Body, SceneState
+from seal.sim.scene import Body, SceneState, open_sign, openness
 
 LEVEL_TOL = 0.15  # radians of pointing error still counted as level / as pointing down
 TURN_XY = 0.03  # how close (metres) the hand gets to its turning point before tipping

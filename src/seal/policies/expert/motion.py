@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from seal.sim.scene import Articulation, Body, SceneState
+from seal.sim.scene import Articulation, Body, SceneState, openness
 
 POS_GAIN = 20.0  # action per metre of position error (saturates at 5 cm)
 YAW_GAIN = 2.0  # action per radian of yaw error
@@ -75,17 +75,6 @@ def joint_of(s: SceneState, obj: str, want_open: bool) -> Articulation:
         raise KeyError(f"{obj!r} has no articulated joint; known: {sorted(s.joints_of)}")
     joints = [s.articulations[n] for n in names]
     return min(joints, key=lambda a: openness(a) if want_open else -openness(a))
-
-
-def open_sign(a: Articulation) -> float:
-    """+1 if opening increases qpos (the range's far end from 0 is positive), else -1."""
-    lo, hi = a.range
-    return 1.0 if abs(hi) >= abs(lo) else -1.0
-
-
-def openness(a: Articulation) -> float:
-    """How far from closed (metres for a slide, radians for a hinge); 0 when closed."""
-    return a.qpos * open_sign(a)
 
 
 def holder_of(s: SceneState, target: str) -> str | None:
