@@ -32,8 +32,8 @@ from seal.errors import InvalidInput
 from seal.sim.lexicon import NAMES, category
 from seal.sim.goals import GRASP_CHECKS, GoalAtom
 from seal.sim.scene import SceneState, open_fraction
-from seal.verify.options import MISS_SCORES
 from seal.verify.base import Verdict, VerifyRequest
+from seal.verify.options import MISS_SCORES
 
 # Words people (and VLAs) use beyond the expert's own lexicon, per object category.
 SYNONYMS: dict[str, tuple[str, ...]] = {
