@@ -31,7 +31,8 @@ def microwave():
 
 def _judge(world, oracle: OracleVerifier, index: int):
     request = VerifyRequest(subplan=PLANS[index], instruction=world.instruction, plans=PLANS, index=index)
-    objects = sorted(set(world.scene_state().bodies) | set(world.scene_state().sites))
+    scene = world.scene_state()
+    objects = sorted(set(scene.bodies) | set(scene.sites))
     request.scene = world.scene_state(oracle.atoms_needed(request, objects))
     return oracle.judge(request)
 
