@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import re
 import signal
 import sqlite3
 import subprocess
@@ -225,6 +226,8 @@ def test_resume_after_killing_the_run(tmp_path):
     assert 1 <= len(before) < 4
     out = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
+    # The progress tally names methods as the report does, not by their stored keys.
+    assert re.search(r"libero_10/0  scripted expert \d+/\d+", out.stderr), out.stderr
     with ResultStore(db) as store:
         rows = store.rows()
     assert sorted(r.trial for r in rows) == [0, 1, 2, 3]  # none lost, none duplicated

@@ -38,6 +38,8 @@ def _cmd_eval(args) -> int:
 
     from seal.eval.execute import RunOptions
     from seal.eval.runner import run_eval
+    from seal.report.data import unique_names
+    from seal.report.labels import display_name
     from seal.sim.suites import parse_task_ids
     from seal.steer.method import parse_methods
 
@@ -51,13 +53,17 @@ def _cmd_eval(args) -> int:
     options = RunOptions(out_dir=out, video=args.video, grids=not args.no_grids, pool_workers=args.pool_workers,
                          max_steps=args.max_steps)
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
+    # The tally reads as the report's tables do ("reasoning VLA + SEAL (oracle) 6/8"), not as stored keys.
+    names = unique_names({m.label: display_name(m.canonical()) for m in methods},
+                         {m.label: m.config_hash for m in methods})
     tally: dict = {}
     with Progress(*columns) as bar:
         job = bar.add_task("eval", total=None)
 
         def on_row(row, ran, total):
-            ok, n = tally.get(row.method, (0, 0))
-            tally[row.method] = (ok + row.success, n + 1)
+            name = names.get(row.method, row.method)
+            ok, n = tally.get(name, (0, 0))
+            tally[name] = (ok + row.success, n + 1)
             rates = "  ".join(f"{m} {a}/{b}" for m, (a, b) in tally.items())
             flag = " [red]error[/red]" if row.status == "error" else ""
             bar.update(job, total=total, completed=ran, description=f"{row.suite}/{row.task}  {rates}{flag}")
