@@ -91,7 +91,7 @@ def test_each_failure_gets_its_first_cause(tmp_path):
     (row,) = list(csv.DictReader(path.read_text().splitlines()))
     assert row["config_hash"] == SEAL.config_hash
     assert (row["trials"], row["committed_passes"], row["held"], row["trials_without_trace"]) == ("6", "5", "2", "2")
-    assert "| libero_10 | scripted expert + SEAL (oracle) | 6 | 5 | 2 | 0.400 [0.118, 0.769] |" in md
+    assert "| libero_10 | scripted expert + SEAL (oracle) | 4 of 6 | 5 | 2 | 0.400 [0.118, 0.769] |" in md
     assert "2 trial(s) had no trace on disk" in md
     # by kind: the picks (T,T), (T,F), (T,T), (T,F) -> 2 of 4 held; the one place passed, (T,F), did not hold
     path = next(p for p in report.csv if p.name == "committed_passes_by_kind.csv")
@@ -121,6 +121,20 @@ def test_a_carried_pick_is_no_miss_where_the_trace_has_the_held_audit(tmp_path):
     path = next(p for p in report.csv if p.name == "committed_passes.csv")
     (row,) = list(csv.DictReader(path.read_text().splitlines()))
     assert (row["committed_passes"], row["held"]) == ("2", "1")
+
+
+def test_a_configuration_without_traces_shows_no_count_of_passes(tmp_path):
+    """Traces lost (or never written): the committed-pass row says so instead of reading as a verifier that
+    never passed."""
+    db = tmp_path / "r.db"
+    with ResultStore(db) as store:
+        store.register_method(SEAL.config_hash, SEAL.label, SEAL.canonical())
+        for t in range(3):
+            store.add(TrialRow(method=SEAL.label, config_hash=SEAL.config_hash, suite="libero_10", task=0, trial=t,
+                               init_index=t, seed=t, success=False, steps=100, wall_s=1.0, subplans=RIGHT,
+                               ended_by="step_limit", fallbacks=1, trace_path=str(tmp_path / "gone" / "trace.jsonl")))
+    md = write_report(db, tmp_path / "out", episodes=False).markdown.read_text()
+    assert "| libero_10 | scripted expert + SEAL (oracle) | 0 of 3 | no trace | no trace | - |" in md
 
 
 def test_candidates_are_counted_per_kind_of_the_subplan_they_were_sampled_for(tmp_path):

@@ -238,8 +238,13 @@ def _precision(held: int, passes: int) -> str:
 
 
 def pass_display(rows: list[PassRow]) -> Table:
-    body = [[r.suite, r.method.label, str(r.trials), str(r.passes), str(r.held), _precision(r.held, r.passes)]
-            for r in rows]
+    def counts(r: PassRow) -> list[str]:
+        if r.no_trace == r.trials:  # nothing to count: a 0 here would read as a verifier that never passed
+            return ["no trace"] * 2 + ["-"]
+        return [str(r.passes), str(r.held), _precision(r.held, r.passes)]
+
+    body = [[r.suite, r.method.label, f"{r.trials - r.no_trace} of {r.trials}" if r.no_trace else str(r.trials),
+             *counts(r)] for r in rows]
     notes = ["Every commit of a passing candidate whose sub-plan the simulator audited, in solved and failed trials; "
              "held: its goal atoms held in the committed state. Precision with a Wilson 95% interval. SEAL commits "
              "the first candidate of a round that passes, so a verifier's false passes are selected for: this "
@@ -250,8 +255,8 @@ def pass_display(rows: list[PassRow]) -> Table:
     missing = sum(r.no_trace for r in rows)
     if missing:
         notes.append(f"{missing} trial(s) had no trace on disk and are left out.")
-    return Table("The passes SEAL committed: how many held", ["Suite", "Method", "trials", "committed passes", "held",
-                                                              "precision"], body, set(), notes, left=2)
+    return Table("The passes SEAL committed: how many held", ["Suite", "Method", "trials traced", "committed passes",
+                                                              "held", "precision"], body, set(), notes, left=2)
 
 
 def pass_kind_display(rows: list[PassRow]) -> Table:
