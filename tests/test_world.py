@@ -6,6 +6,8 @@ import textwrap
 import numpy as np
 import pytest
 
+from _worlds import world_at
+
 from seal.errors import InvalidInput
 from seal.sim.goals import GoalAtom
 from seal.sim.suites import get_task, task_count
@@ -96,6 +98,14 @@ def test_goal_atom_flips_when_object_is_put_in_basket(world):
     # check would crash indexing its free joint)
     for bad in ("Close(alphabet_soup_1)", "Open(alphabet_soup_1)", "TurnOn(basket_1)", "TurnOff(alphabet_soup_1)"):
         assert world.check(bad) is False
+
+
+def test_a_stove_is_never_open_or_closed():
+    # "close the stove", written by the VLA on Visual-Scene task 2, crashed the trial's audit: LIBERO's stove
+    # class raises NotImplementedError for open/close. It turns on and off; it is never open or closed.
+    with world_at("libero_10", 2) as w:
+        assert w.check("Close(flat_stove_1)") is False and w.check("Open(flat_stove_1)") is False
+        assert w.check("TurnOn(flat_stove_1)") is False  # off at the start: the knob's own check still answers
 
 
 @pytest.mark.parametrize(

@@ -443,11 +443,13 @@ class LiberoWorld:
             return bool(env._check_grasp(gripper=groups, object_geoms=env.get_object(atom.subject)))
         try:
             return bool(env._eval_predicate(atom.to_bddl()))
-        except IndexError:
+        except (IndexError, NotImplementedError):
             if atom.predicate not in ARTICULATION:
                 raise
-            # "close the alphabet soup" (a learned policy writes such sub-plans): a free object has no
-            # hinge or slide to be open or closed; LIBERO's check indexes its 7-d free joint and fails
+            # A state the object cannot be in, from sub-plans a learned policy writes: "close the
+            # alphabet soup" (a free object has no hinge or slide; LIBERO's check indexes its 7-d free
+            # joint and fails) or "close the stove" (a knob turns on and off; LIBERO's stove class
+            # leaves open/close unimplemented). Neither holds.
             return False
 
     def goal_status(self) -> dict[str, bool]:
