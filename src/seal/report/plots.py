@@ -36,8 +36,8 @@ def success_plot(data: ReportData, tables: list[SuccessTable], path: Path) -> Pa
     # The legend sits under the axes: method labels are long (every setting that differs is in
     # them) and beside the axes they squeezed a one-suite plot to a sliver.
     entries = len(methods) + 1
-    fig = Figure(figsize=(max(7.0, 1.2 * len(tables) * max(1, len(methods)) * 0.6 + 2), 4.2 + 0.22 * entries),
-                 dpi=110)
+    height = 4.2 + 0.22 * entries
+    fig = Figure(figsize=(max(7.0, 1.2 * len(tables) * max(1, len(methods)) * 0.6 + 2), height), dpi=110)
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
     width = 0.8 / max(1, len(methods))
@@ -69,9 +69,11 @@ def success_plot(data: ReportData, tables: list[SuccessTable], path: Path) -> Pa
     ax.set_ylim(0, 108)
     ax.set_ylabel("success (%)")
     ax.set_title("Success per suite (all trials pooled, Wilson 95% CI)")
-    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=1, frameon=False)
     ax.grid(axis="y", alpha=0.3)
-    fig.tight_layout()
+    # In the figure's bottom strip, not at a fixed offset under the axes: rotated suite names of any
+    # length stay above it (an axes-anchored legend covered "lang_object_property").
+    fig.legend(*ax.get_legend_handles_labels(), fontsize=8, loc="lower center", ncol=1, frameon=False)
+    fig.tight_layout(rect=(0, (0.15 + 0.17 * entries) / height, 1, 1))
     fig.savefig(path)
     return path
 
