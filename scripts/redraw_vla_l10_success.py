@@ -19,8 +19,7 @@ runs = [  # (config as `seal eval` stored it, successes of 100)
 paper = PaperResults.load()
 methods = [MethodInfo(config_hash=str(i), label=display_name(c), config=c, paper_method=paper_method_for(c))
            for i, (c, _) in enumerate(runs)]
-pms = [m.paper_method for m in methods if m.paper_method]
-pms = list(dict.fromkeys(pms))
+pms = [m.paper_method for m in methods]  # one per method here: pi0_reason, pi0, pi0_vgps, seal
 avg = [sum(paper.rate("libero_10", DEFAULT_TRAINING, t, pm) for t in range(10)) / 10 for pm in pms]
 table = SuccessTable(suite="libero_10", methods=methods, paper_methods=pms, training=DEFAULT_TRAINING,
                      tasks=list(range(10)), cells={"average": [Cell(n=100, successes=s) for _, s in runs]},
